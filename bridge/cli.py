@@ -1,0 +1,70 @@
+"""The ``softpinn`` command line.
+
+The CLI only maps flags onto library functions. Each group of subcommands lives in its own
+module with a ``register(subparsers)`` function that adds its parsers and sets ``func`` on each;
+``func(args)`` returns an exit status (or None for 0). Errors a user can fix are printed as one
+line ``softpinn: error: ...`` with exit status 2 and no traceback (see ``*/errors.py``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: Modules that contribute subcommands, in the order they appear in ``--help``.
+COMMAND_MODULES = ("bridge.cli_symbolic", "bridge.cli_learn", "bridge.cli_bridge")
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse with one-line errors: ``softpinn: error: ...`` and exit status 2."""
+
+    def error(self, message: str):  # noqa: D102 - argparse API
+        print(f"softpinn: error: {message} (see '{self.prog} --help')", file=sys.stderr)
+        raise SystemExit(2)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(
+        prog="softpinn",
+        description=(
+            "Learn dynamic models of soft manipulators with physics-inspired neural networks "
+            "and check them against exact PCC equations of motion."
+        ),
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    sub.required = True
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:  # a command group not built yet
+            if exc.name != name:
+                raise
+            continue
+        module.register(sub)
+    return parser
+
+
+def is_user_error(exc: BaseException) -> bool:
+    return bool(getattr(type(exc), "softpinn_user_error", False))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        status = args.func(args)
+    except KeyboardInterrupt:
+        print("softpinn: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if is_user_error(exc):
+            message = " ".join(str(exc).split())
+            print(f"softpinn: error: {message}", file=sys.stderr)
+            return 2
+        raise
+    return 0 if status is None else int(status)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
