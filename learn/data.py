@@ -1,0 +1,324 @@
+"""Dataset files: loading, validation, train/test split by trajectory, and training pairs.
+
+A dataset file (``.npz``, written by ``symbolic.datasets``) holds flat arrays over all samples of
+all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p`` (T, n), ``u`` (T, m), ``traj`` (T,)
+integer trajectory index, and ``meta``, a 0-d string of JSON. A training pair is two consecutive
+samples of ONE trajectory (never across two); its step ``dt`` is read from ``t``, so
+variable-step data works. The pairs feed the one-step losses of eqs. 8 and 9 (state (q, q̇) or
+(q, p)), and the acceleration loss of eq. 10 (q̈ from the file).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NamedTuple
+
+import numpy as np
+
+from .errors import UserError
+
+#: Arrays every dataset file must hold.
+REQUIRED_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj", "meta")
+#: The two state layouts a model can ask for: (q, q̇) for Lagrangian and black-box models on
+#: velocity data, (q, p) for Hamiltonian models (eq. 7).
+STATE_KINDS = ("velocity", "momentum")
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """A validated dataset file. Arrays are float64 (``traj`` int64), samples in file order."""
+
+    path: str
+    sha256: str
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+    p: np.ndarray
+    u: np.ndarray
+    traj: np.ndarray
+    meta: dict
+
+    @property
+    def n(self) -> int:
+        """Number of generalized coordinates."""
+        return int(self.q.shape[1])
+
+    @property
+    def m(self) -> int:
+        """Number of inputs."""
+        return int(self.u.shape[1])
+
+    @property
+    def trajectory_ids(self) -> np.ndarray:
+        """The distinct trajectory indices, sorted."""
+        return np.unique(self.traj)
+
+    def indices(self, traj_id: int) -> np.ndarray:
+        """Sample indices of one trajectory, in time order."""
+        return np.flatnonzero(self.traj == traj_id)
+
+    def state(self, kind: str) -> np.ndarray:
+        """The state of every sample: (q, q̇) for ``"velocity"``, (q, p) for ``"momentum"``."""
+        if kind not in STATE_KINDS:
+            raise UserError(f"state kind must be one of {STATE_KINDS}, got {kind!r}")
+        return np.concatenate([self.q, self.qd if kind == "velocity" else self.p], axis=1)
+
+    def state_derivative(self, kind: str) -> np.ndarray | None:
+        """d/dt of the state of every sample: (q̇, q̈) for velocity; None for momentum (ṗ is
+        not stored in the file)."""
+        if kind == "velocity":
+            return np.concatenate([self.qd, self.qdd], axis=1)
+        return None
+
+
+class PairData(NamedTuple):
+    """Training pairs as numpy arrays; fields match ``learn.losses.Pairs``.
+
+    x0, x1: (B, 2n) states at consecutive samples; u0, u1: (B, m) inputs there; dt: (B,) step;
+    xdot0: (B, 2n) state derivative at x0 (for eq. 10) or None.
+    """
+
+    x0: np.ndarray
+    u0: np.ndarray
+    u1: np.ndarray
+    dt: np.ndarray
+    x1: np.ndarray
+    xdot0: np.ndarray | None
+
+    def __len__(self) -> int:  # number of pairs, not of fields
+        return int(self.x0.shape[0])
+
+    @property
+    def count(self) -> int:
+        return int(self.x0.shape[0])
+
+    def take(self, idx: np.ndarray) -> PairData:
+        """The pairs at ``idx``."""
+        return PairData(
+            self.x0[idx],
+            self.u0[idx],
+            self.u1[idx],
+            self.dt[idx],
+            self.x1[idx],
+            None if self.xdot0 is None else self.xdot0[idx],
+        )
+
+
+def file_sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None) -> Dataset:
+    """Read and validate a dataset file.
+
+    Refuses, with a one-line :class:`UserError` naming the file and the problem: a missing file or
+    key, arrays of mismatched shapes, NaN or inf, time that does not increase strictly within a
+    trajectory, samples of one trajectory that are not contiguous, and a model size other than
+    ``n`` coordinates / ``m`` inputs when these are given.
+    """
+    path = Path(path)
+    name = str(path)
+    if not path.is_file():
+        raise UserError(f"dataset file {name}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            missing = [k for k in REQUIRED_KEYS if k not in z.files]
+            if missing:
+                raise UserError(
+                    f"dataset file {name}: missing key(s) {', '.join(missing)} "
+                    f"(expected {', '.join(REQUIRED_KEYS)})"
+                )
+            arrays = {k: np.asarray(z[k]) for k in REQUIRED_KEYS}
+    except UserError:
+        raise
+    except Exception as exc:  # not a zip / not an npz / object arrays
+        raise UserError(f"dataset file {name}: cannot be read as .npz ({exc})") from None
+
+    try:
+        meta = json.loads(str(arrays["meta"].item()) if arrays["meta"].shape == () else "")
+    except (json.JSONDecodeError, ValueError):
+        raise UserError(f"dataset file {name}: 'meta' must be a 0-d string of JSON") from None
+    if not isinstance(meta, dict):
+        raise UserError(f"dataset file {name}: 'meta' must hold a JSON object")
+
+    t, traj = arrays["t"], arrays["traj"]
+    if t.ndim != 1:
+        raise UserError(f"dataset file {name}: 't' must have shape (T,), got {t.shape}")
+    T = t.shape[0]
+    if T < 2:
+        raise UserError(f"dataset file {name}: needs at least 2 samples, got {T}")
+    if traj.shape != (T,):
+        raise UserError(f"dataset file {name}: 'traj' must have shape ({T},), got {traj.shape}")
+    if not np.issubdtype(traj.dtype, np.integer):
+        raise UserError(f"dataset file {name}: 'traj' must be integer, got dtype {traj.dtype}")
+    q = arrays["q"]
+    if q.ndim != 2 or q.shape[0] != T or q.shape[1] < 1:
+        raise UserError(f"dataset file {name}: 'q' must have shape ({T}, n), got {q.shape}")
+    n_file = q.shape[1]
+    for key in ("qd", "qdd", "p"):
+        if arrays[key].shape != (T, n_file):
+            raise UserError(
+                f"dataset file {name}: '{key}' must have shape ({T}, {n_file}) like 'q', "
+                f"got {arrays[key].shape}"
+            )
+    u = arrays["u"]
+    if u.ndim != 2 or u.shape[0] != T:
+        raise UserError(f"dataset file {name}: 'u' must have shape ({T}, m), got {u.shape}")
+    for key in ("t", "q", "qd", "qdd", "p", "u"):
+        a = arrays[key]
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+            raise UserError(f"dataset file {name}: '{key}' must be numeric, got dtype {a.dtype}")
+        bad = ~np.isfinite(a)
+        if bad.any():
+            first = np.argwhere(bad)[0]
+            raise UserError(
+                f"dataset file {name}: '{key}' holds {int(bad.sum())} NaN/inf value(s), "
+                f"first at index {tuple(int(i) for i in first)}"
+            )
+    if n is not None and n_file != n:
+        raise UserError(
+            f"dataset file {name}: model has n={n} coordinates, the file has n={n_file}"
+        )
+    if m is not None and u.shape[1] != m:
+        raise UserError(f"dataset file {name}: model has m={m} inputs, the file has m={u.shape[1]}")
+
+    # Trajectories must be contiguous runs with strictly increasing time.
+    starts = np.flatnonzero(np.r_[True, traj[1:] != traj[:-1]])
+    if len(starts) != len(np.unique(traj)):
+        raise UserError(
+            f"dataset file {name}: samples of a trajectory must be contiguous in 'traj'"
+        )
+    same = traj[1:] == traj[:-1]
+    dt = np.diff(t.astype(np.float64))
+    bad = same & ~(dt > 0)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise UserError(
+            f"dataset file {name}: time must increase within a trajectory, but in trajectory "
+            f"{int(traj[i])} t[{i + 1}]={t[i + 1]!r} <= t[{i}]={t[i]!r}"
+        )
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    return Dataset(
+        path=str(path.resolve()),
+        sha256=file_sha256(path),
+        t=f64(t),
+        q=f64(q),
+        qd=f64(arrays["qd"]),
+        qdd=f64(arrays["qdd"]),
+        p=f64(arrays["p"]),
+        u=f64(u),
+        traj=traj.astype(np.int64),
+        meta=meta,
+    )
+
+
+def split_trajectories(
+    data: Dataset,
+    *,
+    test: int | float | list[int] | tuple[int, ...] | None = None,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Split trajectory ids into (train, test) BY TRAJECTORY, never by sample.
+
+    ``test``: explicit list of trajectory ids; an int count of test trajectories; a float fraction
+    in (0, 1); or None for 20% (at least one). Counts and fractions draw the test trajectories at
+    random with ``seed``. With a single trajectory there is nothing to hold out: train and test
+    are both that trajectory (reported as such by the caller).
+    """
+    ids = data.trajectory_ids
+    k = len(ids)
+    if isinstance(test, (list, tuple, np.ndarray)):
+        chosen = np.array(sorted({int(i) for i in test}), dtype=np.int64)
+        unknown = np.setdiff1d(chosen, ids)
+        if unknown.size:
+            raise UserError(
+                f"test trajectories {unknown.tolist()} are not in {data.path} "
+                f"(trajectory ids {ids.min()}..{ids.max()})"
+            )
+        if chosen.size >= k:
+            raise UserError(
+                f"test trajectories {chosen.tolist()} leave no trajectory of {data.path} "
+                "for training"
+            )
+        train_ids = np.setdiff1d(ids, chosen)
+        return train_ids, chosen
+    if k == 1:
+        return ids.copy(), ids.copy()
+    if test is None:
+        count = max(1, int(round(0.2 * k)))
+    elif isinstance(test, float):
+        if not 0.0 < test < 1.0:
+            raise UserError(f"test fraction must be in (0, 1), got {test}")
+        count = max(1, int(round(test * k)))
+    else:
+        count = int(test)
+    if not 1 <= count < k:
+        raise UserError(
+            f"number of test trajectories must be between 1 and {k - 1} for {data.path} "
+            f"({k} trajectories), got {count}"
+        )
+    rng = np.random.default_rng(seed)
+    chosen = np.sort(rng.choice(ids, size=count, replace=False))
+    return np.setdiff1d(ids, chosen), chosen
+
+
+def make_pairs(
+    data: Dataset,
+    traj_ids,
+    *,
+    state: str = "velocity",
+    samples: int | None = None,
+    seed: int = 0,
+) -> PairData:
+    """Consecutive-sample pairs (x_k, u_k, u_{k+1}, dt_k, x_{k+1}, ẋ_k) of the given trajectories.
+
+    Pairs never straddle two trajectories. ``samples`` keeps that many pairs drawn at random
+    without replacement with ``seed`` (the paper trains physics models on e.g. 8000 randomly
+    chosen samples); None keeps all.
+    """
+    x = data.state(state)
+    xdot = data.state_derivative(state)
+    idx = []
+    for tid in np.asarray(traj_ids).tolist():
+        rows = data.indices(int(tid))
+        if rows.size < 2:
+            continue
+        idx.append(rows[:-1])
+    if not idx:
+        raise UserError(f"dataset file {data.path}: the chosen trajectories hold no sample pairs")
+    i0 = np.concatenate(idx)
+    if samples is not None:
+        if samples < 1:
+            raise UserError(f"--samples must be >= 1, got {samples}")
+        if samples < i0.size:
+            rng = np.random.default_rng(seed)
+            i0 = np.sort(rng.choice(i0, size=samples, replace=False))
+    i1 = i0 + 1
+    return PairData(
+        x0=x[i0],
+        u0=data.u[i0],
+        u1=data.u[i1],
+        dt=data.t[i1] - data.t[i0],
+        x1=x[i1],
+        xdot0=None if xdot is None else xdot[i0],
+    )
+
+
+def trajectories(data: Dataset, traj_ids, *, state: str = "velocity") -> list[dict]:
+    """Whole trajectories as dicts of arrays ``t``, ``x`` (T, 2n), ``q``, ``u``, with ``id``."""
+    x = data.state(state)
+    out = []
+    for tid in np.asarray(traj_ids).tolist():
+        rows = data.indices(int(tid))
+        out.append(
+            {"id": int(tid), "t": data.t[rows], "x": x[rows], "q": data.q[rows], "u": data.u[rows]}
+        )
+    return out

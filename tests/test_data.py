@@ -1,0 +1,164 @@
+"""Dataset loading, validation, trajectory split and pair construction (learn/data.py)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from datagen import make_dataset, msd_matrices, simulate, write
+
+from learn.data import load_dataset, make_pairs, split_trajectories
+from learn.errors import UserError
+
+
+@pytest.fixture(scope="module")
+def msd_file(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("data") / "msd.npz", trajectories=5, duration=2.0)
+
+
+@pytest.fixture
+def arrays():
+    return simulate("msd", trajectories=3, duration=1.0)
+
+
+def test_load_good_file(msd_file):
+    ds = load_dataset(msd_file, n=2, m=1)
+    assert ds.n == 2 and ds.m == 1
+    assert ds.trajectory_ids.tolist() == [0, 1, 2, 3, 4]
+    assert ds.meta["spec"]["name"] == "test-msd"
+    assert len(ds.sha256) == 64
+    # the analytic data obey eq. 25: M qdd + K q + B qd = A u
+    M, K, B, A = msd_matrices()
+    res = ds.qdd @ M.T + ds.q @ K.T + ds.qd @ B.T - ds.u @ A.T
+    assert np.abs(res).max() < 1e-12
+    np.testing.assert_allclose(ds.p, ds.qd @ M.T)
+
+
+def test_pairs_stay_within_trajectories(msd_file):
+    ds = load_dataset(msd_file)
+    pairs = make_pairs(ds, [1, 3], state="velocity")
+    per = (ds.traj == 1).sum() - 1 + (ds.traj == 3).sum() - 1
+    assert pairs.count == per
+    np.testing.assert_allclose(pairs.dt, 0.05)
+    # x1 of each pair is the sample right after x0 in the same trajectory
+    x = ds.state("velocity")
+    for a, b in zip(pairs.x0, pairs.x1, strict=True):
+        i = int(np.flatnonzero((x == a).all(axis=1))[0])
+        assert ds.traj[i] == ds.traj[i + 1]
+        np.testing.assert_array_equal(x[i + 1], b)
+    assert pairs.xdot0.shape == (per, 4)
+    first = np.concatenate([ds.indices(1)[:-1], ds.indices(3)[:-1]])
+    np.testing.assert_array_equal(pairs.xdot0[:, 2:], ds.qdd[first])
+    np.testing.assert_array_equal(pairs.xdot0[:, :2], ds.qd[first])
+    mom = make_pairs(ds, [1], state="momentum")
+    assert mom.xdot0 is None
+    np.testing.assert_allclose(mom.x0[:, 2:], ds.p[ds.traj == 1][:-1])
+
+
+def test_variable_step_dt(tmp_path, arrays):
+    t = arrays["t"].copy()
+    rng = np.random.default_rng(1)
+    for j in range(3):
+        rows = arrays["traj"] == j
+        t[rows] = np.cumsum(rng.uniform(0.01, 0.1, rows.sum()))
+    arrays["t"] = t
+    ds = load_dataset(write(tmp_path / "v.npz", arrays))
+    pairs = make_pairs(ds, [0, 1, 2])
+    expect = np.concatenate([np.diff(t[arrays["traj"] == j]) for j in range(3)])
+    np.testing.assert_allclose(pairs.dt, expect)
+
+
+def test_subsampling_is_seeded(msd_file):
+    ds = load_dataset(msd_file)
+    a = make_pairs(ds, [0, 1, 2], samples=50, seed=3)
+    b = make_pairs(ds, [0, 1, 2], samples=50, seed=3)
+    c = make_pairs(ds, [0, 1, 2], samples=50, seed=4)
+    assert a.count == 50
+    np.testing.assert_array_equal(a.x0, b.x0)
+    assert not np.array_equal(a.x0, c.x0)
+    assert make_pairs(ds, [0], samples=10_000).count == (ds.traj == 0).sum() - 1
+
+
+def test_split_by_trajectory(msd_file):
+    ds = load_dataset(msd_file)
+    tr, te = split_trajectories(ds, test=2, seed=0)
+    assert len(te) == 2 and len(tr) == 3 and not set(tr) & set(te)
+    tr2, te2 = split_trajectories(ds, test=2, seed=0)
+    np.testing.assert_array_equal(te, te2)
+    tr, te = split_trajectories(ds, test=[4])
+    assert te.tolist() == [4] and tr.tolist() == [0, 1, 2, 3]
+    tr, te = split_trajectories(ds, test=0.4, seed=1)
+    assert len(te) == 2
+    assert len(split_trajectories(ds)[1]) == 1
+    with pytest.raises(UserError, match="not in"):
+        split_trajectories(ds, test=[7])
+    with pytest.raises(UserError, match="no trajectory"):
+        split_trajectories(ds, test=[0, 1, 2, 3, 4])
+    with pytest.raises(UserError, match="between 1 and 4"):
+        split_trajectories(ds, test=5)
+
+
+def _bad(tmp_path, arrays, **changes):
+    a = dict(arrays)
+    for k, v in changes.items():
+        if v is None:
+            a.pop(k)
+        else:
+            a[k] = v
+    return write(tmp_path / "bad.npz", a)
+
+
+def test_refuses_nan(tmp_path, arrays):
+    q = arrays["q"].copy()
+    q[5, 1] = np.nan
+    path = _bad(tmp_path, arrays, q=q)
+    with pytest.raises(UserError, match=r"bad\.npz: 'q' holds 1 NaN/inf value\(s\), first at index \(5, 1\)"):
+        load_dataset(path)
+    u = arrays["u"].copy()
+    u[0, 0] = np.inf
+    with pytest.raises(UserError, match="'u' holds 1 NaN/inf"):
+        load_dataset(_bad(tmp_path, arrays, u=u))
+
+
+def test_refuses_shapes(tmp_path, arrays):
+    with pytest.raises(UserError, match=r"'qd' must have shape \(\d+, 2\) like 'q'"):
+        load_dataset(_bad(tmp_path, arrays, qd=arrays["qd"][:, :1]))
+    with pytest.raises(UserError, match="'traj' must have shape"):
+        load_dataset(_bad(tmp_path, arrays, traj=arrays["traj"][:-1]))
+    with pytest.raises(UserError, match="'u' must have shape"):
+        load_dataset(_bad(tmp_path, arrays, u=arrays["u"][:, 0]))
+
+
+def test_refuses_time_order(tmp_path, arrays):
+    t = arrays["t"].copy()
+    t[7] = t[6]
+    with pytest.raises(UserError, match=r"time must increase within a trajectory.*t\[7\]"):
+        load_dataset(_bad(tmp_path, arrays, t=t))
+    # time restarting at a new trajectory is fine
+    assert load_dataset(_bad(tmp_path, arrays)).trajectory_ids.size == 3
+    traj = arrays["traj"].copy()
+    traj[3] = 2
+    with pytest.raises(UserError, match="contiguous"):
+        load_dataset(_bad(tmp_path, arrays, traj=traj))
+
+
+def test_refuses_size_mismatch(msd_file):
+    with pytest.raises(UserError, match=r"msd\.npz: model has n=3 coordinates, the file has n=2"):
+        load_dataset(msd_file, n=3)
+    with pytest.raises(UserError, match="model has m=2 inputs, the file has m=1"):
+        load_dataset(msd_file, m=2)
+
+
+def test_refuses_missing_key_and_bad_meta(tmp_path, arrays):
+    with pytest.raises(UserError, match=r"bad\.npz: missing key\(s\) qdd"):
+        load_dataset(_bad(tmp_path, arrays, qdd=None))
+    with pytest.raises(UserError, match="no such file"):
+        load_dataset(tmp_path / "nothing.npz")
+    a = dict(arrays)
+    np.savez(tmp_path / "m.npz", **a, meta=np.array("{not json"))
+    with pytest.raises(UserError, match="'meta' must be a 0-d string of JSON"):
+        load_dataset(tmp_path / "m.npz")
+    (tmp_path / "junk.npz").write_text(json.dumps({"a": 1}))
+    with pytest.raises(UserError, match="cannot be read"):
+        load_dataset(tmp_path / "junk.npz")
