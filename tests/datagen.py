@@ -72,8 +72,13 @@ def simulate(
         amp = rng.uniform(0.2, 1.0, m)
         omega = rng.uniform(0.5, 3.0, m)
         phase = rng.uniform(0, 2 * np.pi, m)
-        uf = lambda t: amp * np.sin(omega * t + phase)
-        f = lambda t, x: np.concatenate([x[n:], accel(x[:n], x[n:], uf(t), forced)])
+
+        def uf(t, amp=amp, omega=omega, phase=phase):
+            return amp * np.sin(omega * t + phase)
+
+        def f(t, x, uf=uf):
+            return np.concatenate([x[n:], accel(x[:n], x[n:], uf(t), forced)])
+
         x = np.concatenate([q, qd])
         t = 0.0
         for k in range(steps + 1):

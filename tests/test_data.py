@@ -113,7 +113,8 @@ def test_refuses_nan(tmp_path, arrays):
     q = arrays["q"].copy()
     q[5, 1] = np.nan
     path = _bad(tmp_path, arrays, q=q)
-    with pytest.raises(UserError, match=r"bad\.npz: 'q' holds 1 NaN/inf value\(s\), first at index \(5, 1\)"):
+    msg = r"bad\.npz: 'q' holds 1 NaN/inf value\(s\), first at index \(5, 1\)"
+    with pytest.raises(UserError, match=msg):
         load_dataset(path)
     u = arrays["u"].copy()
     u[0, 0] = np.inf
