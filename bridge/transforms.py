@@ -525,7 +525,7 @@ def fit_joint(
         status, msg = (
             Status.RANK_DEFICIENT,
             (
-                f"[learned blocks] has rank < n = {true.n} at {int(deficient.sum())} of {true.N} q; "
+                f"learned blocks have rank < n = {true.n} at {int(deficient.sum())}/{true.N} q; "
                 "minimum-norm P there"
             ),
         )
