@@ -1,0 +1,256 @@
+"""The CasADi Functions of a model: M, M_inv, G, D, A, C, Cqd, forward, inverse, energies,
+momentum, Hamiltonian form (eq. 7) and the ODE right-hand side.
+
+``functions(spec_or_name)`` returns a dict of ``casadi.Function`` with named inputs and outputs
+(see :data:`SIGNATURES`); names are ``f"{safe_spec_name}_{key}"``. Structure, for small and fast
+generated C:
+
+* each plate density (one per PCC segment, :class:`~symbolic.energies.PlateTerms`) is ONE SX
+  Function of (q, qd, zeta, w), mapped serially over the Gauss-Legendre nodes with the outputs
+  summed (``Function.map`` with ``reduce_in``/``reduce_out``) inside an MX graph;
+* M, G and C qd are outputs of that one mapped Function (common subexpressions shared), never
+  one flat expression;
+* linear solves with M use a small Cholesky factorisation written out in SX (a separate
+  Function), never a symbolic inverse.
+"""
+
+from __future__ import annotations
+
+import re
+from functools import lru_cache
+from pathlib import Path
+
+import casadi as ca
+
+from .eom import Part, SymbolicModel, derive
+from .spec import ModelSpec, load_spec
+
+#: key -> (input names, output names)
+SIGNATURES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "M": (("q",), ("M",)),
+    "M_inv": (("q",), ("M_inv",)),
+    "G": (("q",), ("G",)),
+    "D": (("q",), ("D",)),
+    "A": (("q",), ("A",)),
+    "C": (("q", "qd"), ("C",)),
+    "Cqd": (("q", "qd"), ("Cqd",)),
+    "forward": (("q", "qd", "u"), ("qdd",)),
+    "inverse": (("q", "qd", "qdd"), ("tau",)),
+    "energy": (("q", "qd"), ("E",)),
+    "kinetic": (("q", "qd"), ("T",)),
+    "potential": (("q",), ("V",)),
+    "momentum": (("q", "qd"), ("p",)),
+    "hamiltonian": (("q", "p", "u"), ("qdot", "pdot")),
+    "ode": (("x", "u"), ("xdot",)),
+}
+
+_OPTS = {"cse": True}
+
+
+def safe_name(name: str) -> str:
+    """A valid C identifier made from a spec name."""
+    out = re.sub(r"\W", "_", name)
+    if not out or out[0].isdigit():
+        out = "m_" + out
+    return out
+
+
+def spd_solve_function(n: int, k: int, name: str) -> ca.Function:
+    """X = M^-1 B for symmetric positive-definite M (n x n), B (n x k), by a Cholesky factor
+    written out in SX (no pivoting, no symbolic inverse)."""
+    M = ca.SX.sym("M", n, n)
+    B = ca.SX.sym("B", n, k)
+    L = [[None] * n for _ in range(n)]
+    for j in range(n):
+        s = M[j, j]
+        for c in range(j):
+            s = s - L[j][c] * L[j][c]
+        L[j][j] = ca.sqrt(s)
+        inv = 1.0 / L[j][j]
+        for i in range(j + 1, n):
+            s = M[i, j]
+            for c in range(j):
+                s = s - L[i][c] * L[j][c]
+            L[i][j] = s * inv
+    cols = []
+    for col in range(k):
+        y = [None] * n
+        for i in range(n):
+            s = B[i, col]
+            for c in range(i):
+                s = s - L[i][c] * y[c]
+            y[i] = s / L[i][i]
+        x = [None] * n
+        for i in reversed(range(n)):
+            s = y[i]
+            for c in range(i + 1, n):
+                s = s - L[c][i] * x[c]
+            x[i] = s / L[i][i]
+        cols.append(ca.vertcat(*x))
+    X = ca.horzcat(*cols) if cols else ca.SX(n, 0)
+    return ca.Function(name, [M, B], [X], ["M", "B"], ["X"], _OPTS)
+
+
+class _Builder:
+    """Builds the MX graphs of the public Functions from a :class:`SymbolicModel`."""
+
+    def __init__(self, model: SymbolicModel):
+        self.model = model
+        self.prefix = safe_name(model.spec.name)
+        self.n, self.m = model.n, model.m
+
+    def part_function(self, part: Part, keys: tuple[str, ...], tag: str) -> ca.Function:
+        """The part's terms ``keys`` as a Function of (q, qd); a plate density is mapped over
+        its quadrature nodes and summed."""
+        mdl = self.model
+        exprs = [getattr(part.terms, k) for k in keys]
+        name = f"{self.prefix}_{tag}_{part.name}"
+        if part.nodes is None:
+            return ca.Function(name, [mdl.q, mdl.qd], exprs, ["q", "qd"], list(keys), _OPTS)
+        w = ca.SX.sym("w")
+        density = ca.Function(name + "_density", [mdl.q, mdl.qd, mdl.zeta, w],
+                              [w * e for e in exprs], ["q", "qd", "zeta", "w"], list(keys),
+                              _OPTS)
+        N = len(part.nodes)
+        mapped = density.map(name + "_map", "serial", N, [0, 1], list(range(len(keys))))
+        zeta = ca.DM(part.nodes).T
+        weights = ca.DM(part.weights).T
+        q, qd = ca.MX.sym("q", self.n), ca.MX.sym("qd", self.n)
+        outs = mapped.call([q, qd, zeta, weights])
+        return ca.Function(name, [q, qd], outs, ["q", "qd"], list(keys))
+
+    def terms(self, keys: tuple[str, ...], q, qd, tag: str) -> list:
+        """Sum over parts of the terms ``keys`` at MX (q, qd), densified."""
+        totals = [None] * len(keys)
+        if qd is None:  # a function of q only
+            qd = ca.MX.zeros(self.n, 1)
+        for part in self.model.parts:
+            wanted = tuple(k for k in keys if not _structurally_zero(part, k))
+            if not wanted:
+                continue
+            outs = self.part_function(part, wanted, tag).call([q, qd])
+            for k, val in zip(wanted, outs, strict=True):
+                i = keys.index(k)
+                totals[i] = val if totals[i] is None else totals[i] + val
+        shapes = {"M": (self.n, self.n), "C": (self.n, self.n), "V": (1, 1), "T": (1, 1)}
+        out = []
+        for k, val in zip(keys, totals, strict=True):
+            shape = shapes.get(k, (self.n, 1))
+            out.append(ca.densify(val) if val is not None else ca.MX.zeros(*shape))
+        return out
+
+    def solver(self, k: int, tag: str) -> ca.Function:
+        return spd_solve_function(self.n, k, f"{self.prefix}_{tag}_solve")
+
+    def A_function(self) -> ca.Function:
+        mdl = self.model
+        A = mdl.A
+        # A never depends on qd (the tip-wrench Jacobian is linear in qd); substitute 0 anyway.
+        A = ca.substitute(A, mdl.qd, ca.SX.zeros(self.n))
+        return ca.Function(f"{self.prefix}_A_expr", [mdl.q], [ca.densify(A)], ["q"], ["A"],
+                           _OPTS)
+
+    def build(self, key: str) -> ca.Function:
+        n, m = self.n, self.m
+        q = ca.MX.sym("q", n)
+        qd = ca.MX.sym("qd", n)
+        u = ca.MX.sym("u", m)
+        D = ca.MX(self.model.D)
+        name = f"{self.prefix}_{key}"
+        if key == "M":
+            (M,) = self.terms(("M",), q, None, key)
+            outs, ins = [M], [q]
+        elif key == "M_inv":
+            (M,) = self.terms(("M",), q, None, key)
+            outs, ins = [self.solver(n, key)(M, ca.MX.eye(n))], [q]
+        elif key == "G":
+            outs, ins = self.terms(("G",), q, None, key), [q]
+        elif key == "D":
+            outs, ins = [ca.densify(D)], [q]
+        elif key == "A":
+            outs, ins = [self.A_function()(q)], [q]
+        elif key in ("C", "Cqd"):
+            outs, ins = self.terms((key,), q, qd, key), [q, qd]
+        elif key in ("forward", "ode"):
+            M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
+            rhs = -Cqd - G - D @ qd
+            if m:
+                rhs = rhs + self.A_function()(q) @ u
+            qdd = self.solver(1, key)(M, rhs)
+            if key == "forward":
+                outs, ins = [qdd], [q, qd, u]
+            else:
+                x = ca.MX.sym("x", 2 * n)
+                f = ca.Function(f"{name}_forward", [q, qd, u], [qdd])
+                outs, ins = [ca.vertcat(x[n:], f(x[:n], x[n:], u))], [x, u]
+        elif key == "inverse":
+            qdd = ca.MX.sym("qdd", n)
+            M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
+            outs, ins = [M @ qdd + Cqd + G + D @ qd], [q, qd, qdd]
+        elif key in ("energy", "kinetic", "potential"):
+            T, V = self.terms(("T", "V"), q, None if key == "potential" else qd, key)
+            val = {"energy": T + V, "kinetic": T, "potential": V}[key]
+            outs, ins = [val], ([q] if key == "potential" else [q, qd])
+        elif key == "momentum":
+            (M,) = self.terms(("M",), q, None, key)
+            outs, ins = [M @ qd], [q, qd]
+        elif key == "hamiltonian":
+            p = ca.MX.sym("p", n)
+            M, G = self.terms(("M", "G"), q, None, key)
+            qdot = self.solver(1, key)(M, p)
+            (dTdq,) = self.terms(("dTdq",), q, qdot, key + "_dTdq")
+            pdot = dTdq - G - D @ qdot
+            if m:
+                pdot = pdot + self.A_function()(q) @ u
+            outs, ins = [qdot, pdot], [q, p, u]
+        else:
+            raise KeyError(key)
+        in_names, out_names = SIGNATURES[key]
+        return ca.Function(name, ins, outs, list(in_names), list(out_names), _OPTS)
+
+
+def _structurally_zero(part: Part, key: str) -> bool:
+    """Terms a closed-form part does not contribute (skips building empty Functions)."""
+    terms = part.terms
+    if part.nodes is not None:
+        return False
+    expr_zero = {
+        "M": lambda: terms.M.nnz() == 0,
+        "T": lambda: terms.M.nnz() == 0,
+        "C": lambda: not ca.depends_on(terms.M, terms.q),
+        "Cqd": lambda: terms.Cqd.nnz() == 0,
+        "dTdq": lambda: not ca.depends_on(terms.M, terms.q),
+    }
+    check = expr_zero.get(key)
+    return bool(check()) if check else False
+
+
+@lru_cache(maxsize=32)
+def _functions(spec: ModelSpec, order: int) -> dict[str, ca.Function]:
+    builder = _Builder(derive(spec, order))
+    return {key: builder.build(key) for key in SIGNATURES}
+
+
+def functions(model: str | Path | ModelSpec, order: int | None = None) -> dict[str, ca.Function]:
+    """All Functions of a model (a :class:`ModelSpec`, a preset name or a spec path), keyed as
+    in :data:`SIGNATURES`; cached per spec value. ``order`` is the Gauss-Legendre order of the
+    zeta integrals (default :data:`symbolic.energies.DEFAULT_ORDER`)."""
+    from .energies import DEFAULT_ORDER
+
+    spec = load_spec(model)
+    return dict(_functions(spec, DEFAULT_ORDER if order is None else int(order)))
+
+
+def function_sizes(fns: dict[str, ca.Function]) -> dict[str, int]:
+    """Number of elementary operations of each Function after expanding it to SX (a measure
+    of generated-code size), or -1 where it cannot be expanded."""
+    out = {}
+    for key, f in fns.items():
+        try:
+            out[key] = int(f.expand().n_nodes()) if f.is_a("MXFunction") else int(f.n_nodes())
+        except RuntimeError:
+            out[key] = -1
+    return out
+
+
+__all__ = ["SIGNATURES", "function_sizes", "functions", "safe_name", "spd_solve_function"]

@@ -1,0 +1,159 @@
+"""``TrueModel``: the numeric face of :func:`symbolic.functions.functions`.
+
+Every method takes numpy arrays: one state (``q`` of shape (n,)) or a batch (shape (N, n)),
+evaluated with ``Function.map(N)`` in one call (no Python loop), and returns numpy arrays:
+(n, n) / (n,) / float for one state, (N, n, n) / (N, n) / (N,) for a batch.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from .errors import UserError
+from .functions import functions
+from .spec import ModelSpec, load_spec
+
+#: outputs returned as matrices even when a dimension is 1 (A with one input)
+_MATRICES = frozenset({"M", "M_inv", "D", "A", "C"})
+
+
+class TrueModel:
+    """Numeric M, M^-1, G, D, A, C, C qd, forward and inverse dynamics, energies and the
+    Hamiltonian form (eqs. 4, 7) of a model spec, a preset name or a spec path."""
+
+    def __init__(self, model: str | Path | ModelSpec, order: int | None = None):
+        self.spec: ModelSpec = load_spec(model)
+        self.n: int = self.spec.n
+        self.m: int = self.spec.m
+        self.functions: dict[str, ca.Function] = functions(self.spec, order)
+        self._mapped: dict[tuple[str, int], ca.Function] = {}
+
+    # ------------------------------------------------------------------ evaluation core
+
+    def _arg(self, name: str, value, size: int) -> tuple[np.ndarray, bool]:
+        a = np.asarray(value, dtype=float)
+        if a.ndim == 0 or a.ndim > 2:
+            raise UserError(f"{name}: expected shape ({size},) or (N, {size}), got {a.shape}")
+        if a.shape[-1] != size:
+            raise UserError(f"{name}: expected length {size} for model "
+                            f"'{self.spec.name}', got {a.shape[-1]}")
+        return a, a.ndim == 2
+
+    def call(self, key: str, **inputs) -> list[np.ndarray]:
+        """Evaluate Function ``key`` at named numpy inputs; returns its outputs as arrays."""
+        f = self.functions[key]
+        sizes = {f.name_in(i): f.size1_in(i) for i in range(f.n_in())}
+        if set(inputs) != set(sizes):
+            raise UserError(f"{key}: expected inputs {sorted(sizes)}, got {sorted(inputs)}")
+        arrays, batch = {}, None
+        for name, size in sizes.items():
+            a, is_batch = self._arg(name, inputs[name], size)
+            arrays[name] = a
+            if is_batch:
+                if batch is not None and batch != a.shape[0]:
+                    raise UserError(f"{name}: batch size {a.shape[0]} differs from {batch}")
+                batch = a.shape[0]
+        if batch is None:
+            res = f.call({k: ca.DM(v) for k, v in arrays.items()})
+            return [self._single(f, j, res[f.name_out(j)]) for j in range(f.n_out())]
+        args = {}
+        for name, a in arrays.items():
+            if a.ndim == 1:
+                a = np.broadcast_to(a, (batch, a.size))
+            args[name] = ca.DM(np.ascontiguousarray(a.T))
+        fm = self._mapped.get((key, batch))
+        if fm is None:
+            fm = self._mapped[(key, batch)] = f.map(batch)
+        res = fm.call(args)
+        return [self._batched(f, j, res[f.name_out(j)], batch) for j in range(f.n_out())]
+
+    @staticmethod
+    def _single(f: ca.Function, j: int, value: ca.DM):
+        a = np.array(value, dtype=float).reshape(f.size1_out(j), f.size2_out(j), order="F")
+        if f.name_out(j) in _MATRICES:
+            return a
+        if a.shape == (1, 1):
+            return float(a[0, 0])
+        return a[:, 0]
+
+    @staticmethod
+    def _batched(f: ca.Function, j: int, value: ca.DM, batch: int):
+        r, c = f.size1_out(j), f.size2_out(j)
+        a = np.array(value, dtype=float)  # r x (c * batch)
+        a = a.reshape(r, batch, c).transpose(1, 0, 2)
+        if f.name_out(j) in _MATRICES:
+            return a
+        if r == 1 and c == 1:
+            return a[:, 0, 0]
+        return a[:, :, 0]
+
+    # ------------------------------------------------------------------ the public face
+
+    def M(self, q):
+        """Mass matrix M(q) (eqs. 18-20)."""
+        return self.call("M", q=q)[0]
+
+    def M_inv(self, q):
+        """M(q)^-1 by a Cholesky solve."""
+        return self.call("M_inv", q=q)[0]
+
+    def G(self, q):
+        """Generalized potential force dV/dq (eqs. 21-24)."""
+        return self.call("G", q=q)[0]
+
+    def D(self, q):
+        """Damping matrix."""
+        return self.call("D", q=q)[0]
+
+    def A(self, q):
+        """Input matrix A(q) (n x m)."""
+        return self.call("A", q=q)[0]
+
+    def C(self, q, qd):
+        """Coriolis matrix from the Christoffel symbols of M."""
+        return self.call("C", q=q, qd=qd)[0]
+
+    def Cqd(self, q, qd):
+        """C(q, qd) qd = Mdot qd - 1/2 d(qd^T M qd)/dq."""
+        return self.call("Cqd", q=q, qd=qd)[0]
+
+    def qdd(self, q, qd, u=None):
+        """Forward dynamics: qdd solving M qdd + C qd + G + D qd = A u (eq. 4)."""
+        return self.call("forward", q=q, qd=qd, u=self._u(u, q))[0]
+
+    def tau(self, q, qd, qdd):
+        """Inverse dynamics: M qdd + C qd + G + D qd (equals A u)."""
+        return self.call("inverse", q=q, qd=qd, qdd=qdd)[0]
+
+    def energy(self, q, qd):
+        """Total energy: kinetic + gravitational + elastic."""
+        return self.call("energy", q=q, qd=qd)[0]
+
+    def kinetic(self, q, qd):
+        return self.call("kinetic", q=q, qd=qd)[0]
+
+    def potential(self, q):
+        return self.call("potential", q=q)[0]
+
+    def momentum(self, q, qd):
+        """p = M(q) qd."""
+        return self.call("momentum", q=q, qd=qd)[0]
+
+    def hamiltonian(self, q, p, u=None):
+        """(qdot, pdot) of the Hamiltonian form (eq. 7) with damping and input."""
+        return tuple(self.call("hamiltonian", q=q, p=p, u=self._u(u, q)))
+
+    def ode(self, x, u=None):
+        """xdot = [qd; qdd] for x = [q; qd]."""
+        return self.call("ode", x=x, u=self._u(u, np.asarray(x)[..., : self.n]))[0]
+
+    def _u(self, u, q):
+        if u is None:
+            return np.zeros(self.m)
+        return u
+
+    def __repr__(self) -> str:
+        return f"TrueModel({self.spec.name!r}, n={self.n}, m={self.m})"
