@@ -1,0 +1,487 @@
+"""Tables shaped like the paper's: matrices at chosen q (Tables I, II, V-IX), fit summaries and
+the paper's Table III beside our figures, written as Markdown, CSV or LaTeX (booktabs).
+
+A :class:`Table` is a value: column spans (group, matrix, number of columns) and rows of cells
+(numbers or text). Matrix tables put one configuration q in n consecutive rows, as the paper
+does: row r of a block holds q_r and row r of every matrix. Numbers are formatted at write time
+(:func:`format_number`): fixed point for 1e-2 <= |x| < 1e4, scientific otherwise, ``precision``
+digits after the point, like the paper's ``1.728e-03`` and ``1.293``. CSV keeps full precision
+(17 significant digits) and reads back with :func:`read_csv`.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UserError
+
+Cell = float | int | str | None
+
+#: Column groups of a transform table and how the paper heads them.
+GROUP_TITLES = {
+    "true": "mathematical model",
+    "learned": "physics-based learning model",
+    "transformed": "transformed learned model",
+    "P": "transform",
+}
+_LATEX_MATRIX = {"M": "M", "M_inv": "M^{-1}", "D": "D", "G": "G", "A": "A", "P": "P"}
+
+
+@dataclass(frozen=True)
+class Span:
+    """``ncols`` adjacent columns holding matrix ``label`` of column group ``group``."""
+
+    group: str
+    label: str
+    ncols: int = 1
+    latex: str | None = None  # header in LaTeX (math allowed); ``label`` escaped if None
+
+
+@dataclass(frozen=True)
+class Table:
+    """A table: column spans, rows of cells, rows per q-block (for separators), caption."""
+
+    spans: tuple[Span, ...]
+    rows: tuple[tuple[Cell, ...], ...]
+    block_rows: int = 0  # > 0: a rule after every block of this many rows
+    caption: str = ""
+
+    def __post_init__(self):
+        width = sum(s.ncols for s in self.spans)
+        for i, row in enumerate(self.rows):
+            if len(row) != width:
+                raise ValueError(f"row {i} has {len(row)} cells, the header {width}")
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Unique flat column names: ``group label[j]`` (``group label`` for one column)."""
+        out = []
+        for s in self.spans:
+            base = f"{s.group} {s.label}".strip()
+            out += [base] if s.ncols == 1 else [f"{base}[{j + 1}]" for j in range(s.ncols)]
+        return tuple(out)
+
+
+# --------------------------------------------------------------------------------------------
+# Number formatting
+
+
+def format_number(x: Cell, precision: int = 3) -> str:
+    """Paper style: ``1.293``, ``1.728e-03``, ``600.323``; text passes through."""
+    if x is None:
+        return ""
+    if isinstance(x, str):
+        return x
+    if isinstance(x, bool | np.bool_):
+        return str(bool(x))
+    if isinstance(x, int | np.integer):
+        return str(int(x))
+    x = float(x)
+    if math.isnan(x):
+        return "nan"
+    if math.isinf(x):
+        return "inf" if x > 0 else "-inf"
+    if x == 0.0:
+        return f"{0.0:.{precision}f}"
+    if 1e-2 <= abs(x) < 1e4 and round(abs(x), precision) != 0:
+        return f"{x:.{precision}f}"
+    return f"{x:.{precision}e}"
+
+
+def format_mean_std(
+    mean: float | None,
+    std: float | None,
+    *,
+    precision: int = 3,
+    std_precision: int | None = None,
+    horizon_s: float | None = None,
+) -> str:
+    """Table III style: ``5.969e-08 ± 1.69e-07``, ``0.171 ± 0.272``.
+
+    The std follows the mean's notation: scientific with ``precision - 1`` digits after the
+    point when the mean is scientific, fixed with ``precision`` digits otherwise (or
+    ``std_precision`` for both). A std of ``None`` prints ``inf``, as the paper does; with
+    ``horizon_s`` the horizon follows in parentheses: ``0.171 ± 0.272 (5s)``.
+    """
+    if mean is None:
+        return "—"
+    m = format_number(mean, precision)
+    if std is None:
+        s = "inf"
+    elif "e" in m:
+        sp = precision - 1 if std_precision is None else std_precision
+        s = f"{float(std):.{max(sp, 0)}e}"
+    else:
+        sp = precision if std_precision is None else std_precision
+        s = f"{float(std):.{max(sp, 0)}f}"
+    text = f"{m} ± {s}"
+    if horizon_s is not None:
+        text += f" ({horizon_s:g}s)"
+    return text
+
+
+# --------------------------------------------------------------------------------------------
+# Builders
+
+
+def _as_columns(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, dtype=np.float64)
+    return a[:, :, None] if a.ndim == 2 else a
+
+
+def matrix_table(
+    q: np.ndarray,
+    matrices: Sequence[tuple[str, str, np.ndarray]],
+    *,
+    caption: str = "",
+    latex: Mapping[tuple[str, str], str] | None = None,
+) -> Table:
+    """Rows per q like Tables I, II: ``matrices`` is a list of (group, label, stack), each
+    stack (N, n, c) or (N, n); q (N, n). Block i holds q_i down its first column."""
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2:
+        raise UserError(f"q: expected shape (N, n), got {q.shape}")
+    N, n = q.shape
+    stacks = []
+    for group, label, a in matrices:
+        a = _as_columns(a)
+        if a.shape[:2] != (N, n):
+            raise UserError(f"{group} {label}: expected shape ({N}, {n}, c), got {a.shape}")
+        stacks.append((group, label, a))
+    latex = latex or {}
+    spans = [Span("", "q", 1, "$q$")]
+    spans += [Span(g, lab, a.shape[2], latex.get((g, lab))) for g, lab, a in stacks]
+    rows = []
+    for i in range(N):
+        for r in range(n):
+            row: list[Cell] = [float(q[i, r])]
+            for _, _, a in stacks:
+                row += [float(v) for v in a[i, r]]
+            rows.append(tuple(row))
+    return Table(tuple(spans), tuple(rows), block_rows=n, caption=caption)
+
+
+def transform_table(
+    q: np.ndarray,
+    true,
+    learned,
+    result=None,
+    *,
+    matrices: Sequence[str] = ("M", "D", "G", "A"),
+    caption: str = "",
+) -> Table:
+    """Table I / II: true and learned matrices at each q, then (with a transform ``result``)
+    the transformed learned matrices ``P X^`` and P itself. ``true`` and ``learned`` are
+    :class:`bridge.transforms.MatrixStack` or dicts; ``M_inv`` is allowed in ``matrices``."""
+    from .transforms import as_stack
+
+    true, learned = as_stack(true, "true"), as_stack(learned, "learned")
+    cols, tex = [], {}
+    for group, side in (("true", true), ("learned", learned)):
+        for k in matrices:
+            if not side.has(k):
+                continue
+            cols.append((group, k, side.block(k)))
+            body = _LATEX_MATRIX.get(k, k)
+            tex[(group, k)] = f"${body}(q)$" if group == "true" else f"$\\hat{{{body}}}(q)$"
+    if result is not None:
+        for k in matrices:
+            if k in ("M_inv",) or not (true.has(k) and learned.has(k)):
+                continue
+            cols.append(("transformed", k, result.P @ learned.block(k)))
+            body = _LATEX_MATRIX.get(k, k)
+            tex[("transformed", k)] = f"$P\\hat{{{body}}}$"
+        cols.append(("P", result.name, result.P))
+        tex[("P", result.name)] = f"$P$ ({_latex_escape(result.name)})"
+    return matrix_table(q, cols, caption=caption, latex=tex)
+
+
+def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
+    """One row per transform: status, relative residual of each matrix over all q, their
+    root mean square, the nearest multiple of I (scale c, alpha = 1/c, relative distance) and,
+    for ``smooth``, the held-out residual."""
+    blocks: list[str] = []
+    for r in results.values():
+        blocks += [k for k in r.residual if k not in blocks]
+    spans = [Span("", "transform"), Span("", "status")]
+    spans += [Span("residual", k, 1, f"${_LATEX_MATRIX.get(k, k)}$") for k in blocks]
+    spans += [
+        Span("residual", "total"),
+        Span("P ~ cI", "c"),
+        Span("P ~ cI", "alpha", 1, "$\\alpha = 1/c$"),
+        Span("P ~ cI", "distance"),
+        Span("held-out", "residual"),
+    ]
+    rows = []
+    for name, r in results.items():
+        held = r.params.get("residual_heldout") if hasattr(r, "params") else None
+        held_v = max(held.values()) if held else None
+        rows.append(
+            (name, str(r.status))
+            + tuple(r.residual.get(k) for k in blocks)
+            + (r.residual_total, r.scale_all, r.alpha, r.distance_all, held_v)
+        )
+    return Table(tuple(spans), tuple(rows), caption=caption)
+
+
+# --------------------------------------------------------------------------------------------
+# Table III: ours beside the paper
+
+
+def load_paper_tables(path: str | Path | None = None) -> dict[str, Any]:
+    """The paper's tables as transcribed (``paper_tables.json`` shipped with this package)."""
+    if path is None:
+        text = Path(__file__).with_name("paper_tables.json").read_text("utf-8")
+    else:
+        p = Path(path)
+        if not p.is_file():
+            raise UserError(f"paper tables: no such file {str(p)!r}")
+        text = p.read_text("utf-8")
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise UserError(f"paper tables {path or 'paper_tables.json'}: not JSON ({exc})") from exc
+
+
+_TABLE_III_COLUMNS = (
+    "source",
+    "model",
+    "timestep",
+    "model size",
+    "samples",
+    "epochs",
+    "train error",
+    "test error",
+    "prediction error (horizon)",
+)
+_KINDS = {"blackbox": "black-box", "physics": "physics-based"}
+
+
+def _table_iii_entry(
+    entry: Mapping[str, Any] | None, variant: str | None, timestep_s: float | None = None
+) -> list[Cell]:
+    if not entry:
+        return ["—"] * 7
+    ts = entry.get("timestep_s", timestep_s)
+    timestep = f"{ts:g}s" if ts is not None else None
+    if timestep is None:
+        timestep = variant or "—"
+
+    def err(key):
+        e = entry.get(key)
+        if not e:
+            return "—"
+        return format_mean_std(e.get("mean"), e.get("std"), horizon_s=e.get("horizon_s"))
+
+    model = entry.get("model", "—")
+    if "network" in entry and entry["network"]:
+        model = f"{model} ({entry['network']})"
+    return [
+        timestep,
+        model,
+        entry.get("samples", "—"),
+        entry.get("epochs", "—"),
+        err("train_error"),
+        err("test_error"),
+        err("prediction_error"),
+    ]
+
+
+def table_iii_comparison(
+    task: str,
+    ours: Mapping[str, Mapping[str, Any]],
+    *,
+    variant: str | None = None,
+    paper: Mapping[str, Any] | None = None,
+    caption: str = "",
+) -> Table:
+    """Table III's row for ``task`` (``task1`` ... ``task5``; Task 5 needs ``variant``, one of
+    ``fixed_0.0002s``, ``50Hz``, ``100Hz``, ``1000Hz``) beside ours.
+
+    ``ours`` maps ``"blackbox"`` and/or ``"physics"`` to dicts with the keys of
+    ``paper_tables.json``: ``timestep_s``, ``model``, ``samples``, ``epochs``, ``train_error``,
+    ``test_error``, ``prediction_error`` (each ``{"mean", "std"}``, the last with
+    ``"horizon_s"``), optionally ``network``.
+    """
+    paper = load_paper_tables() if paper is None else paper
+    table = paper.get("table_III", paper)
+    tasks = [k for k in table if k.startswith("task")]
+    if task not in tasks:
+        raise UserError(f"task: expected one of {tasks}, got {task!r}")
+    row = table[task]
+    for kind in ours:
+        if kind not in _KINDS:
+            raise UserError(f"ours: unknown model kind {kind!r}; expected {list(_KINDS)}")
+    rows = []
+    # Table III prints the time step once per task, in the black-box column
+    shared_ts = (row.get("blackbox") or {}).get("timestep_s")
+    for kind, title in _KINDS.items():
+        entry = row.get(kind)
+        if entry is not None and variant is None and "model" not in entry:
+            raise UserError(
+                f"variant: {task} has several columns in Table III, choose one of {list(entry)}"
+            )
+        if entry is not None and variant is not None and "model" not in entry:
+            entry = entry.get(variant)
+        rows.append(tuple(["paper", title] + _table_iii_entry(entry, variant, shared_ts)))
+        if kind in ours:
+            rows.append(tuple(["ours", title] + _table_iii_entry(ours[kind], variant)))
+    spans = tuple(Span("", c) for c in _TABLE_III_COLUMNS)
+    cap = caption or f"{task} ({row.get('system', '')}): the paper's Table III and ours"
+    return Table(spans, tuple(rows), caption=cap)
+
+
+# --------------------------------------------------------------------------------------------
+# Writers
+
+
+def to_markdown(table: Table, *, precision: int = 3) -> str:
+    """GitHub Markdown; a blank row between q-blocks."""
+
+    def cell(x):
+        return format_number(x, precision).replace("|", "\\|")
+
+    head = "| " + " | ".join(c.replace("|", "\\|") for c in table.columns) + " |"
+    rule = "|" + "|".join("---" for _ in table.columns) + "|"
+    lines = [f"**{table.caption}**", ""] if table.caption else []
+    lines += [head, rule]
+    for i, row in enumerate(table.rows):
+        if table.block_rows and i and i % table.block_rows == 0:
+            lines.append("| " + " | ".join("" for _ in row) + " |")
+        lines.append("| " + " | ".join(cell(x) for x in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _latex_escape(text: str) -> str:
+    out = []
+    for ch in text:
+        if ch in "&%$#_{}":
+            out.append("\\" + ch)
+        elif ch == "~":
+            out.append("\\textasciitilde{}")
+        elif ch == "^":
+            out.append("\\textasciicircum{}")
+        elif ch == "\\":
+            out.append("\\textbackslash{}")
+        elif ch == "±":
+            out.append("$\\pm$")
+        elif ch == "—":
+            out.append("--")
+        else:
+            out.append(ch)
+    return "".join(out)
+
+
+def to_latex(table: Table, *, precision: int = 3, label: str | None = None) -> str:
+    """A booktabs ``table`` environment: group headers with ``\\cmidrule``, matrix headers
+    spanning their columns, ``\\midrule`` between q-blocks."""
+    ncol = len(table.columns)
+    lines = ["\\begin{table}[ht]", "\\centering"]
+    if table.caption:
+        lines.append(f"\\caption{{{_latex_escape(table.caption)}}}")
+    if label:
+        lines.append(f"\\label{{{label}}}")
+    lines += [f"\\begin{{tabular}}{{{'r' * ncol}}}", "\\toprule"]
+    # group header row (merged runs of equal group)
+    runs: list[list] = []
+    for s in table.spans:
+        if runs and runs[-1][0] == s.group:
+            runs[-1][1] += s.ncols
+        else:
+            runs.append([s.group, s.ncols])
+    if any(g for g, _ in runs):
+        cells, rules, col = [], [], 1
+        for g, w in runs:
+            title = _latex_escape(GROUP_TITLES.get(g, g))
+            cells.append(f"\\multicolumn{{{w}}}{{c}}{{{title}}}" if w > 1 else title)
+            if g:
+                rules.append(f"\\cmidrule(lr){{{col}-{col + w - 1}}}")
+            col += w
+        lines.append(" & ".join(cells) + " \\\\")
+        lines.append(" ".join(rules))
+    cells = []
+    for s in table.spans:
+        head = s.latex if s.latex is not None else _latex_escape(s.label)
+        cells.append(f"\\multicolumn{{{s.ncols}}}{{c}}{{{head}}}" if s.ncols > 1 else head)
+    lines += [" & ".join(cells) + " \\\\", "\\midrule"]
+    for i, row in enumerate(table.rows):
+        if table.block_rows and i and i % table.block_rows == 0:
+            lines.append("\\midrule")
+        lines.append(" & ".join(_latex_escape(format_number(x, precision)) for x in row) + " \\\\")
+    lines += ["\\bottomrule", "\\end{tabular}", "\\end{table}"]
+    return "\n".join(lines) + "\n"
+
+
+def _csv_cell(x: Cell) -> str:
+    if x is None:
+        return ""
+    if isinstance(x, float | np.floating):
+        return repr(float(x)) if math.isfinite(x) else str(float(x))
+    return str(x)
+
+
+def to_csv(table: Table) -> str:
+    """CSV with the flat column names and numbers at full precision (``repr``)."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(table.columns)
+    for row in table.rows:
+        w.writerow([_csv_cell(x) for x in row])
+    return buf.getvalue()
+
+
+def _parse_cell(text: str) -> Cell:
+    if text == "":
+        return None
+    try:
+        return int(text)
+    except ValueError:
+        pass
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def parse_csv(text: str) -> tuple[tuple[str, ...], tuple[tuple[Cell, ...], ...]]:
+    """Columns and rows of CSV text written by :func:`to_csv` (numbers parsed back)."""
+    rows = list(csv.reader(io.StringIO(text)))
+    if not rows:
+        raise UserError("csv: empty, expected a header row")
+    return tuple(rows[0]), tuple(tuple(_parse_cell(c) for c in r) for r in rows[1:])
+
+
+def read_csv(path: str | Path) -> tuple[tuple[str, ...], tuple[tuple[Cell, ...], ...]]:
+    """Columns and rows of a CSV file written by :func:`write_table`."""
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"csv: no such file {str(p)!r}")
+    return parse_csv(p.read_text("utf-8"))
+
+
+def write_table(table: Table, out_dir: str | Path, stem: str, *, precision: int = 3) -> dict:
+    """Write ``stem.md``, ``stem.csv`` and ``stem.tex`` into ``out_dir`` (atomically); returns
+    the paths by format."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {}
+    for ext, text in (
+        ("md", to_markdown(table, precision=precision)),
+        ("csv", to_csv(table)),
+        ("tex", to_latex(table, precision=precision, label=f"tab:{stem}")),
+    ):
+        path = out / f"{stem}.{ext}"
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text(text, "utf-8")
+        tmp.replace(path)
+        paths[ext] = path
+    return paths
