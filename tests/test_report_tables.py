@@ -1,0 +1,220 @@
+"""bridge.tables: paper-shaped tables in Markdown, CSV and LaTeX, and Table III beside ours."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bridge.errors import UserError
+from bridge.tables import (
+    format_mean_std,
+    format_number,
+    load_paper_tables,
+    matrix_table,
+    parse_csv,
+    read_csv,
+    summary_table,
+    table_iii_comparison,
+    to_csv,
+    to_latex,
+    to_markdown,
+    transform_table,
+    write_table,
+)
+from bridge.transforms import fit_joint, fit_smooth, fit_transform
+
+TASK4_ROW = {  # Table I, q = [1.2, -0.2, 0.15], mathematical model
+    "M": [[1.728e-03, -3.121e-05, -1.957e-03], [-3.121e-05, 1.546e-03, 3.261e-04],
+          [-1.957e-03, 3.261e-04, 9.286e-02]],
+    "D": [[0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]],
+    "G": [1.293, -0.216, -1.149],
+    "A": [[-0.037, -0.993, 0.065], [0.777, 0.037, -0.011], [0.0, 0.0, 0.771]],
+}  # fmt: skip
+
+
+def random_stacks(N=4, n=3, m=2, seed=0):
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1, 1, (N, n))
+    B = rng.standard_normal((N, n, n))
+    true = {
+        "M": B @ np.swapaxes(B, 1, 2) + n * np.eye(n),
+        "D": np.broadcast_to(0.1 * np.eye(n), (N, n, n)).copy(),
+        "G": rng.standard_normal((N, n)),
+        "A": rng.standard_normal((N, n, m)),
+    }
+    P = np.eye(n) * 2 + 0.1 * rng.standard_normal((N, n, n))
+    Pinv = np.linalg.inv(P)
+    learned = {k: Pinv @ v for k, v in true.items() if k != "G"}
+    learned["G"] = (Pinv @ true["G"][:, :, None])[:, :, 0]
+    return q, true, learned
+
+
+@pytest.mark.parametrize(
+    ("x", "precision", "text"),
+    [
+        (1.293, 3, "1.293"),
+        (1.728e-03, 3, "1.728e-03"),
+        (600.3234, 3, "600.323"),
+        (-0.0371, 3, "-0.037"),
+        (9.286e-02, 3, "0.093"),
+        (0.0, 3, "0.000"),
+        (12345.678, 2, "1.23e+04"),
+        (3.14159265, 5, "3.14159"),
+        (41599, 3, "41599"),
+        ("lagrangian", 3, "lagrangian"),
+        (float("nan"), 3, "nan"),
+        (None, 3, ""),
+    ],
+)
+def test_format_number(x, precision, text):
+    assert format_number(x, precision) == text
+
+
+def test_format_mean_std_like_table_iii():
+    assert format_mean_std(5.969e-08, 1.69e-07) == "5.969e-08 ± 1.69e-07"
+    assert format_mean_std(0.171, 0.272, horizon_s=5.0) == "0.171 ± 0.272 (5s)"
+    assert format_mean_std(2.001, None, horizon_s=2.7) == "2.001 ± inf (2.7s)"
+    assert format_mean_std(9.723e-04, 1.33e-02) == "9.723e-04 ± 1.33e-02"
+
+
+def test_matrix_table_layout_like_table_i():
+    q = np.array([[1.2, -0.2, 0.15]])
+    mats = [("true", k, np.array([TASK4_ROW[k]])) for k in ("M", "D", "G", "A")]
+    t = matrix_table(q, mats)
+    assert t.columns[:5] == ("q", "true M[1]", "true M[2]", "true M[3]", "true D[1]")
+    assert "true G" in t.columns and len(t.columns) == 1 + 3 + 3 + 1 + 3
+    assert len(t.rows) == 3 and t.block_rows == 3
+    # row r: q_r, row r of M, D, G, A
+    assert t.rows[1][0] == -0.2 and t.rows[1][1:4] == tuple(TASK4_ROW["M"][1])
+    md = to_markdown(t, precision=3)
+    for text in ("| 1.200 | 1.728e-03 | -3.121e-05 | -1.957e-03 |", "| 0.093 |", "0.777"):
+        assert text in md
+    tex = to_latex(t, precision=3, label="tab:one")
+    assert "\\toprule" in tex and "\\bottomrule" in tex and "\\label{tab:one}" in tex
+    assert "1.200 & 1.728e-03 & -3.121e-05 & -1.957e-03 & 0.100 & 0.000" in tex
+    assert tex.count("\\\\") == 3 + 2  # three rows, group header, matrix header
+
+
+def test_precision_is_respected():
+    t = matrix_table(np.array([[0.123456789]]), [("true", "M", np.array([[[3.14159265358]]]))])
+    assert "| 0.12346 | 3.14159 |" in to_markdown(t, precision=5)
+    assert "0.1 & 3.1 \\\\" in to_latex(t, precision=1)
+    assert "3.14159265358" in to_csv(t)
+
+
+def test_csv_round_trip(tmp_path):
+    q, true, learned = random_stacks()
+    res = fit_joint(true, learned, q)
+    t = transform_table(q, true, learned, res, caption="like Table I")
+    columns, rows = parse_csv(to_csv(t))
+    assert columns == t.columns
+    assert rows == t.rows  # repr round-trips every float exactly
+    paths = write_table(t, tmp_path / "out", "table_I", precision=4)
+    assert sorted(p.suffix for p in paths.values()) == [".csv", ".md", ".tex"]
+    assert read_csv(paths["csv"]) == (t.columns, t.rows)
+    md = paths["md"].read_text()
+    assert "**like Table I**" in md and format_number(float(q[0, 0]), 4) in md
+    assert not list((tmp_path / "out").glob("*.tmp"))
+
+
+def test_transform_table_holds_P_and_transformed():
+    q, true, learned = random_stacks(N=3, n=3, m=2)
+    res = fit_joint(true, learned, q)
+    t = transform_table(q, true, learned, res)
+    cols = t.columns
+    assert "transformed A[2]" in cols and "P joint[3]" in cols and "learned G" in cols
+    arr = np.array([[np.nan if isinstance(x, str) else x for x in r] for r in t.rows])
+    i = cols.index("transformed M[1]")
+    np.testing.assert_allclose(arr[:, i : i + 3].reshape(3, 3, 3), true["M"], atol=1e-12)
+    j = cols.index("P joint[1]")
+    np.testing.assert_allclose(arr[:, j : j + 3].reshape(3, 3, 3), res.P)
+    tex = to_latex(t)
+    assert "$\\hat{M}(q)$" in tex and "$P\\hat{G}$" in tex and "\\cmidrule" in tex
+
+
+def test_hamiltonian_table_shows_M_inv_without_transform():
+    q, true, learned = random_stacks(N=2)
+    true["M_inv"] = np.linalg.inv(true.pop("M"))
+    learned["M_inv"] = np.linalg.inv(learned.pop("M"))
+    t = transform_table(q, true, learned, None, matrices=("M_inv", "D", "G", "A"))
+    assert "true M_inv[1]" in t.columns and "learned M_inv[3]" in t.columns
+    assert not any(c.startswith("P") or c.startswith("transformed") for c in t.columns)
+    assert "$M^{-1}(q)$" in to_latex(t)
+
+
+def test_summary_table_lists_each_transform():
+    q, true, learned = random_stacks(N=12)
+    results = {n: fit_transform(n, true, learned, q) for n in ("pointwise", "alpha", "direct")}
+    results["smooth"] = fit_smooth(true, learned, q, degree=1)
+    t = summary_table(results)
+    assert [r[0] for r in t.rows] == ["pointwise", "alpha", "direct", "smooth"]
+    c = t.columns
+    row = dict(zip(c, t.rows[1], strict=True))
+    assert row["P ~ cI alpha"] == pytest.approx(results["alpha"].params["alpha"])
+    assert row["residual M"] == results["alpha"].residual["M"]
+    held = dict(zip(c, t.rows[3], strict=True))["held-out residual"]
+    assert held == max(results["smooth"].params["residual_heldout"].values())
+    md = to_markdown(t)
+    assert "| pointwise | success |" in md
+
+
+def test_table_iii_comparison_puts_paper_numbers_in():
+    paper = load_paper_tables()
+    ref = json.loads((Path(__file__).parents[1] / "bridge" / "paper_tables.json").read_text())
+    assert paper == ref
+    ours = {
+        "physics": {
+            "timestep_s": 0.02,
+            "model": "(4*2)*2 + 4*2",
+            "network": "lagrangian",
+            "samples": 10000,
+            "epochs": 600,
+            "train_error": {"mean": 1.0e-07, "std": 2.0e-07},
+            "test_error": {"mean": 3.0e-07, "std": 4.0e-07},
+            "prediction_error": {"mean": 1.5e-04, "std": 6.0e-06, "horizon_s": 2.7},
+        }
+    }
+    t = table_iii_comparison("task1", ours, paper=paper)
+    assert [r[:2] for r in t.rows] == [
+        ("paper", "black-box"),
+        ("paper", "physics-based"),
+        ("ours", "physics-based"),
+    ]
+    md = to_markdown(t)
+    p = paper["table_III"]["task1"]["physics"]
+    assert "| paper | physics-based | 0.02s | (4*2)*2 + 4*2 (lagrangian) | 10000 | 6000 |" in md
+    assert format_mean_std(p["train_error"]["mean"], p["train_error"]["std"]) in md
+    assert "5.969e-08 ± 1.69e-07" in md and "5.172e-08 ± 1.23e-07" in md
+    assert "1.303e-04 ± 5.32e-06 (2.7s)" in md and "2.001 ± inf (2.7s)" in md
+    assert "| ours | physics-based | 0.02s |" in md and "1.000e-07 ± 2.00e-07" in md
+    tex = to_latex(t)
+    assert "5.969e-08 $\\pm$ 1.69e-07" in tex
+    # Task 5 has one column per data set
+    t5 = table_iii_comparison("task5", {}, variant="1000Hz", paper=paper)
+    assert "1.822e-07 ± 6.67e-06" in to_markdown(t5)
+    assert t5.rows[0][2:] == ("—",) * 7  # no black-box model at 1000 Hz in the paper
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"task": "task9", "ours": {}}, "task: expected one of"),
+        ({"task": "task5", "ours": {}}, "variant: task5 has several columns"),
+        ({"task": "task1", "ours": {"lnn": {}}}, "unknown model kind 'lnn'"),
+    ],
+)
+def test_table_iii_bad_input(kwargs, match):
+    with pytest.raises(UserError, match=match):
+        table_iii_comparison(**kwargs)
+
+
+def test_bad_shapes_and_files(tmp_path):
+    with pytest.raises(UserError, match=r"true M: expected shape \(2, 3, c\)"):
+        matrix_table(np.zeros((2, 3)), [("true", "M", np.zeros((2, 2, 2)))])
+    with pytest.raises(UserError, match="no such file"):
+        read_csv(tmp_path / "missing.csv")
+    with pytest.raises(UserError, match="no such file"):
+        load_paper_tables(tmp_path / "missing.json")
