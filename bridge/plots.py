@@ -1,0 +1,130 @@
+"""Plots of the matrix-equivalence analysis (matplotlib's object API with the Agg canvas; no
+pyplot, so no global state):
+
+* :func:`plot_entries_scatter`: every entry of each true matrix against the same entry of the
+  (transformed) learned one, over all q, with the identity line: points on the line mean
+  ``P X^ = X`` (Tables I, II, V-IX, as pictures);
+* :func:`plot_transform_entries`: the entries of P(q) over the sampled q, one panel per entry,
+  one series per transform (pointwise P(q) beside a smooth fit, a constant P or I / alpha).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+from .errors import UserError
+from .transforms import as_stack
+
+_TITLES = {"M": "M(q)", "M_inv": "M(q)^-1", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
+
+
+def _save(fig: Figure, path: str | Path | None) -> Figure:
+    FigureCanvasAgg(fig)
+    if path is not None:
+        p = Path(path)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        tmp = p.with_name(p.stem + ".tmp" + p.suffix)
+        fig.savefig(tmp, dpi=110)
+        tmp.replace(p)
+    return fig
+
+
+def plot_entries_scatter(
+    true,
+    learned,
+    result=None,
+    *,
+    matrices: Sequence[str] = ("M", "D", "G", "A"),
+    path: str | Path | None = None,
+    title: str = "",
+) -> Figure:
+    """Scatter of true vs learned entries per matrix, with the identity line.
+
+    With a transform ``result`` (:class:`bridge.transforms.TransformResult`) the learned
+    matrices are mapped first (``P X^``); ``M_inv`` is always compared as it is. Saved to
+    ``path`` (PNG, PDF, SVG by suffix) when given; the figure is returned.
+    """
+    true, learned = as_stack(true, "true"), as_stack(learned, "learned")
+    keys = [k for k in matrices if true.has(k) and learned.has(k)]
+    if not keys:
+        raise UserError(
+            f"matrices: none of {list(matrices)} is given on both sides "
+            f"(true {list(true.present)}, learned {list(learned.present)})"
+        )
+    fig = Figure(figsize=(3.2 * len(keys), 3.4), layout="constrained")
+    axes = fig.subplots(1, len(keys), squeeze=False)[0]
+    for ax, k in zip(axes, keys, strict=True):
+        x = true.block(k)
+        y = learned.block(k)
+        mapped = result is not None and k != "M_inv"
+        if mapped:
+            y = result.P @ y
+        x, y = x.ravel(), y.ravel()
+        ok = np.isfinite(y)
+        ax.scatter(x[ok], y[ok], s=8, alpha=0.6, label="P X^" if mapped else "X^")
+        lo = float(min(x.min(), y[ok].min() if ok.any() else x.min()))
+        hi = float(max(x.max(), y[ok].max() if ok.any() else x.max()))
+        pad = 0.05 * (hi - lo or 1.0)
+        ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8, label="identity")
+        ax.set_title(_TITLES.get(k, k))
+        ax.set_xlabel("true")
+        ax.set_ylabel("P · learned" if mapped else "learned")
+        ax.legend(fontsize="small")
+    if title or result is not None:
+        fig.suptitle(title or f"true vs learned entries ({result.name})")
+    return _save(fig, path)
+
+
+def plot_transform_entries(
+    q: np.ndarray,
+    results: Mapping[str, object],
+    *,
+    coordinate: int | None = None,
+    path: str | Path | None = None,
+    title: str = "",
+) -> Figure:
+    """Entries P_ij over the sampled q, one panel per entry and one series per transform.
+
+    The x axis is the sample index, or ``q[:, coordinate]`` (points sorted by it). For a
+    ``smooth`` result the held-out q are drawn as open markers.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    if q.ndim != 2:
+        raise UserError(f"q: expected shape (N, n), got {q.shape}")
+    if not results:
+        raise UserError("results: expected at least one transform result")
+    N, n = q.shape
+    for name, r in results.items():
+        if r.P.shape != (N, n, n):
+            raise UserError(f"results[{name!r}].P: expected shape ({N}, {n}, {n}), got {r.P.shape}")
+    if coordinate is not None and not (0 <= coordinate < n):
+        raise UserError(f"coordinate: expected an index in [0, {n}), got {coordinate}")
+    if coordinate is None:
+        x, order, xlabel = np.arange(N), np.arange(N), "sample"
+    else:
+        order = np.argsort(q[:, coordinate], kind="stable")
+        x, xlabel = q[order, coordinate], f"q[{coordinate}]"
+    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.6), layout="constrained")
+    axes = fig.subplots(n, n, squeeze=False, sharex=True)
+    for name, r in results.items():
+        P = r.P[order]
+        train = getattr(r, "params", {}).get("train")
+        for i in range(n):
+            for j in range(n):
+                ax = axes[i, j]
+                (line,) = ax.plot(x, P[:, i, j], "-", lw=1.0, marker=".", ms=3, label=name)
+                if train is not None:
+                    held = ~np.asarray(train)[order]
+                    ax.plot(x[held], P[held, i, j], "o", mfc="none", color=line.get_color())
+    for i in range(n):
+        for j in range(n):
+            axes[i, j].set_title(f"P[{i + 1},{j + 1}]", fontsize="small")
+        axes[-1, i].set_xlabel(xlabel)
+    axes[0, 0].legend(fontsize="x-small")
+    fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
+    return _save(fig, path)
