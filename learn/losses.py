@@ -1,0 +1,159 @@
+"""Training losses (eqs. 8-10) and batched helpers.
+
+* :func:`pair_loss` / :func:`pair_errors`: one RK4 step per pair with the pair's own dt, then
+  ‖q₁ - q̂₁‖² + λ ‖v₁ - v̂₁‖², with v = q̇ (eq. 8, Lagrangian and velocity data) or v = p
+  (eq. 9, Hamiltonian and momentum data); the loss is the mean over the batch.
+* :func:`accel_loss`: eq. 10, no integration: ‖ẋ₀ - f(x₀, u₀)‖². For a Lagrangian model
+  ẋ = (q̇, q̈) and the first half is q̇ itself, so this is exactly ‖q̈ - q̂̈‖²; for the
+  Hamiltonian and the black box it also fits q̇ (resp. the whole derivative).
+* :func:`rollout_loss`: the mean of the same per-sample error over h consecutive steps
+  simulated from the first state of each window.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from .errors import UserError
+from .integrate import rollout, step
+
+__all__ = [
+    "Pairs",
+    "Windows",
+    "state_error",
+    "pair_predictions",
+    "pair_errors",
+    "pair_loss",
+    "accel_errors",
+    "accel_loss",
+    "rollout_errors",
+    "rollout_loss",
+    "batch_vector_field",
+]
+
+
+class Pairs(NamedTuple):
+    """A batch of B consecutive-sample pairs of one trajectory each (never across two)."""
+
+    x0: jax.Array  # (B, 2n) state at t_k: (q, q̇) or (q, p)
+    u0: jax.Array  # (B, m) input at t_k
+    u1: jax.Array  # (B, m) input at t_{k+1} (used by input_hold="linear")
+    dt: jax.Array  # (B,) t_{k+1} - t_k
+    x1: jax.Array  # (B, 2n) state at t_{k+1}
+    xdot0: jax.Array | None = None  # (B, 2n) derivative at t_k, for eq. 10
+
+
+class Windows(NamedTuple):
+    """A batch of B windows of h + 1 consecutive samples of one trajectory each."""
+
+    x: jax.Array  # (B, h + 1, 2n)
+    u: jax.Array  # (B, h + 1, m)
+    t: jax.Array  # (B, h + 1)
+
+
+def state_error(x_true, x_pred, n: int, weight=1.0):
+    """‖q - q̂‖² + λ ‖v - v̂‖² over the last axis, v the second half of the state (eqs. 8, 9)."""
+    d = x_true - x_pred
+    dq, dv = d[..., :n], d[..., n:]
+    return jnp.sum(dq * dq, axis=-1) + weight * jnp.sum(dv * dv, axis=-1)
+
+
+def _check_pairs(model, pairs):
+    n2 = 2 * model.config.n
+    B = pairs.x0.shape[0]
+    shapes = {
+        "x0": (B, n2),
+        "u0": (B, model.config.m),
+        "u1": (B, model.config.m),
+        "dt": (B,),
+        "x1": (B, n2),
+    }
+    for name, shape in shapes.items():
+        got = getattr(pairs, name).shape
+        if got != shape:
+            raise UserError(f"pairs.{name} must have shape {shape}, got {got}")
+
+
+def batch_vector_field(model, x, u):
+    """ẋ for a batch: x (B, 2n), u (B, m) -> (B, 2n)."""
+    return jax.vmap(model.vector_field)(x, u)
+
+
+def pair_predictions(model, pairs: Pairs, *, substeps=1, input_hold="constant"):
+    """x̂₁ for every pair: one RK4 step (or ``substeps``) over each pair's own dt, (B, 2n)."""
+    _check_pairs(model, pairs)
+    one = lambda x0, u0, u1, dt: step(
+        model, x0, u0, u1, dt, substeps=substeps, input_hold=input_hold
+    )
+    return jax.vmap(one)(pairs.x0, pairs.u0, pairs.u1, pairs.dt)
+
+
+def pair_errors(model, pairs: Pairs, *, weight=1.0, substeps=1, input_hold="constant"):
+    """Per-pair loss ‖q₁ - q̂₁‖² + λ ‖v₁ - v̂₁‖² (eq. 8 or 9), shape (B,)."""
+    x1_hat = pair_predictions(model, pairs, substeps=substeps, input_hold=input_hold)
+    return state_error(jnp.asarray(pairs.x1, x1_hat.dtype), x1_hat, model.config.n, weight)
+
+
+def pair_loss(model, pairs: Pairs, *, weight=1.0, substeps=1, input_hold="constant"):
+    """Eq. 8 (velocity state) / eq. 9 (momentum state): mean of :func:`pair_errors`."""
+    return jnp.mean(
+        pair_errors(model, pairs, weight=weight, substeps=substeps, input_hold=input_hold)
+    )
+
+
+def accel_errors(model, pairs: Pairs):
+    """Per-sample ‖ẋ₀ - f(x₀, u₀)‖² (eq. 10), shape (B,); needs ``pairs.xdot0``."""
+    if pairs.xdot0 is None:
+        raise UserError("the acceleration loss (eq. 10) needs pairs.xdot0 (the dataset's qdd)")
+    _check_pairs(model, pairs)
+    if pairs.xdot0.shape != pairs.x0.shape:
+        raise UserError(f"pairs.xdot0 must have shape {pairs.x0.shape}, got {pairs.xdot0.shape}")
+    f = batch_vector_field(model, pairs.x0, pairs.u0)
+    d = jnp.asarray(pairs.xdot0, f.dtype) - f
+    return jnp.sum(d * d, axis=-1)
+
+
+def accel_loss(model, pairs: Pairs):
+    """Eq. 10: mean over the batch of ‖ẋ₀ - f(x₀, u₀)‖² (= ‖q̈ - q̂̈‖² for Lagrangian models)."""
+    return jnp.mean(accel_errors(model, pairs))
+
+
+def rollout_errors(
+    model, windows: Windows, *, horizon: int, weight=1.0, substeps=1, input_hold="constant"
+):
+    """Per-window mean over h steps of ‖q_k - q̂_k‖² + λ ‖v_k - v̂_k‖², shape (B,).
+
+    Each window is simulated from its first state with its own inputs and times; only the first
+    ``horizon + 1`` samples of each window are used.
+    """
+    x, u, t = windows
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+        raise UserError(f"horizon must be an integer >= 1, got {horizon!r}")
+    if x.ndim != 3 or x.shape[1] < horizon + 1:
+        raise UserError(
+            f"windows.x must have shape (B, >= {horizon + 1}, {2 * model.config.n}), got {x.shape}"
+        )
+    x, u, t = x[:, : horizon + 1], u[:, : horizon + 1], t[:, : horizon + 1]
+    one = lambda xw, uw, tw: rollout(model, xw[0], uw, tw, substeps=substeps, input_hold=input_hold)
+    xhat = jax.vmap(one)(x, u, t)
+    err = state_error(jnp.asarray(x, xhat.dtype)[:, 1:], xhat[:, 1:], model.config.n, weight)
+    return jnp.mean(err, axis=1)
+
+
+def rollout_loss(
+    model, windows: Windows, *, horizon: int, weight=1.0, substeps=1, input_hold="constant"
+):
+    """Multi-step loss: mean over windows and steps of the state error (eqs. 8/9 over h steps)."""
+    return jnp.mean(
+        rollout_errors(
+            model,
+            windows,
+            horizon=horizon,
+            weight=weight,
+            substeps=substeps,
+            input_hold=input_hold,
+        )
+    )

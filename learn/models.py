@@ -1,0 +1,381 @@
+"""Dynamics models: Lagrangian (eq. 6), Hamiltonian (eq. 7) and black-box networks (Figs. 6-7).
+
+Every model is written for ONE sample: ``model.vector_field(x, u)`` takes a state x of shape
+(2n,), ``concat(q, q̇)`` for ``state_kind == "velocity"`` or ``concat(q, p)`` for
+``"momentum"``, and an input u of shape (m,), and returns ẋ of shape (2n,). Batch with
+``jax.vmap`` (see :mod:`learn.losses`).
+
+The physics models are built from the sub-networks of :mod:`learn.nets` held as plain fields
+(``mass``, ``potential``, ``damping``, ``input_map``); any module that follows that small
+protocol can be put in their place, e.g. analytic fields of a known system in the tests::
+
+    LagrangianNet(config=cfg, mass=..., potential=..., damping=..., input_map=...)
+"""
+
+from __future__ import annotations
+
+import abc
+import dataclasses
+from dataclasses import dataclass
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+from .errors import UserError
+from .linalg import cho_inverse, cho_solve, cholesky
+from .nets import (
+    ACTIVATIONS,
+    CholeskyField,
+    ConstantCholesky,
+    ConstantMatrix,
+    MatrixField,
+    ScalarField,
+    ZeroMatrix,
+    make_mlp,
+)
+
+__all__ = [
+    "KINDS",
+    "ModelConfig",
+    "DynamicsModel",
+    "LagrangianNet",
+    "LagrangianHessianNet",
+    "HamiltonianNet",
+    "BlackBoxNet",
+    "make_model",
+]
+
+KINDS = ("lagrangian", "lagrangian-hessian", "hamiltonian", "blackbox")
+_DAMPING_FORMS = ("network", "constant", "none")
+_INPUT_FORMS = ("network", "constant")
+_DTYPES = ("float64", "float32")
+_STATE_KINDS = ("velocity", "momentum")
+_NATURAL_STATE = {
+    "lagrangian": "velocity",
+    "lagrangian-hessian": "velocity",
+    "hamiltonian": "momentum",
+}
+
+
+def _check_layers(name, value):
+    try:
+        width, depth = (int(v) for v in value)
+        ok = len(tuple(value)) == 2 and width >= 1 and depth >= 0
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise UserError(f"{name} must be (width >= 1, depth >= 0), got {value!r}")
+    return (width, depth)
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Everything needed to rebuild a model (hashable; JSON round trip with to_dict/from_dict).
+
+    ``kind``: "lagrangian" (structured eq. 6), "lagrangian-hessian" (the literal Hessian form of
+    eq. 6, a reference), "hamiltonian" (eq. 7) or "blackbox" (MLP baseline). ``n`` coordinates,
+    ``m`` inputs (0: unactuated, no A network). Layer sizes are (width, depth) with depth hidden
+    layers. ``eps`` shifts the diagonal of M's (or M⁻¹'s) Cholesky factor (Fig. 2).
+    ``state_kind`` matters only for the black box ("velocity": x = (q, q̇), "momentum": x =
+    (q, p)); the physics models fix it (Lagrangian: velocity, Hamiltonian: momentum) and
+    ``None`` resolves to that.
+    """
+
+    kind: str
+    n: int
+    m: int
+    mass: tuple[int, int] = (64, 3)
+    potential: tuple[int, int] = (64, 3)
+    damping: tuple[int, int] = (16, 2)
+    input: tuple[int, int] = (16, 2)
+    hidden: tuple[int, int] = (128, 3)
+    activation: str = "softplus"
+    damping_form: str = "network"
+    input_form: str = "network"
+    eps: float = 1e-3
+    dtype: str = "float64"
+    state_kind: str | None = None
+
+    def __post_init__(self):
+        set_ = lambda k, v: object.__setattr__(self, k, v)
+        if self.kind not in KINDS:
+            raise UserError(f"model kind must be one of {list(KINDS)}, got {self.kind!r}")
+        for name, low in (("n", 1), ("m", 0)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < low:
+                raise UserError(f"model {name} must be an integer >= {low}, got {v!r}")
+        for name in ("mass", "potential", "damping", "input", "hidden"):
+            set_(name, _check_layers(name, getattr(self, name)))
+        if self.activation not in ACTIVATIONS:
+            raise UserError(
+                f"activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
+            )
+        if self.damping_form not in _DAMPING_FORMS:
+            raise UserError(
+                f"damping_form must be one of {list(_DAMPING_FORMS)}, got {self.damping_form!r}"
+            )
+        if self.input_form not in _INPUT_FORMS:
+            raise UserError(
+                f"input_form must be one of {list(_INPUT_FORMS)}, got {self.input_form!r}"
+            )
+        if not (isinstance(self.eps, int | float) and self.eps >= 0):
+            raise UserError(f"eps must be a number >= 0, got {self.eps!r}")
+        set_("eps", float(self.eps))
+        if self.dtype not in _DTYPES:
+            raise UserError(f"dtype must be one of {list(_DTYPES)}, got {self.dtype!r}")
+        natural = _NATURAL_STATE.get(self.kind)
+        if self.state_kind is None:
+            set_("state_kind", natural or "velocity")
+        elif self.state_kind not in _STATE_KINDS:
+            raise UserError(
+                f"state_kind must be one of {list(_STATE_KINDS)}, got {self.state_kind!r}"
+            )
+        elif natural is not None and self.state_kind != natural:
+            raise UserError(
+                f"state_kind of a {self.kind} model must be {natural!r}, got {self.state_kind!r}"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (tuples become lists)."""
+        return {
+            k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self).items()
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> ModelConfig:
+        """Rebuild from :meth:`to_dict` output; unknown keys are refused."""
+        if not isinstance(d, dict):
+            raise UserError(f"model config must be a JSON object, got {type(d).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise UserError(f"unknown model config key(s) {unknown}; expected keys {sorted(known)}")
+        missing = sorted(k for k in ("kind", "n", "m") if k not in d)
+        if missing:
+            raise UserError(f"model config is missing key(s) {missing}")
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        return cls(**kw)
+
+
+class DynamicsModel(eqx.Module):
+    """A learned continuous-time dynamics model ẋ = f(x, u) for one sample."""
+
+    config: ModelConfig = eqx.field(static=True)
+
+    @property
+    @abc.abstractmethod
+    def state_kind(self) -> str:
+        """ "velocity" (x = (q, q̇)) or "momentum" (x = (q, p))."""
+
+    @abc.abstractmethod
+    def vector_field(self, x, u):
+        """ẋ for one state x (2n,) and input u (m,)."""
+
+    @property
+    def dtype(self):
+        return jnp.dtype(self.config.dtype)
+
+    def _cast(self, *arrays):
+        return tuple(jnp.asarray(a, self.dtype) for a in arrays)
+
+    def matrices(self, q) -> dict:
+        raise UserError(f"a {self.config.kind} model has no physical matrices M, D, G, A")
+
+    def qdd(self, q, qd, u):
+        raise UserError(f"qdd (eq. 6) is defined for Lagrangian models, not {self.config.kind}")
+
+
+class _PhysicsModel(DynamicsModel):
+    """Shared fields of the structured models: mass-like field, V, D and A."""
+
+    mass: Any  # factor(q) -> L; M = L Lᵀ (Lagrangian) or M⁻¹ = L Lᵀ (Hamiltonian)
+    potential: Any  # V(q) -> scalar
+    damping: Any  # D(q) -> (n, n), positive semi-definite
+    input_map: Any  # A(q) -> (n, m)
+
+    def energy(self, x):
+        """Total energy T + V at state x (for tests and diagnostics)."""
+        raise NotImplementedError
+
+
+class _LagrangianBase(_PhysicsModel):
+    @property
+    def state_kind(self) -> str:
+        return "velocity"
+
+    def vector_field(self, x, u):
+        """ẋ = (q̇, q̈) with q̈ from eq. 6."""
+        (x, u) = self._cast(x, u)
+        n = self.config.n
+        q, qd = x[:n], x[n:]
+        return jnp.concatenate([qd, self.qdd(q, qd, u)])
+
+    def matrices(self, q) -> dict:
+        """Learned {"M", "M_inv", "D", "G", "A"} at one q (G = dV/dq)."""
+        (q,) = self._cast(q)
+        L = self.mass.factor(q)
+        return {
+            "M": L @ L.T,
+            "M_inv": cho_inverse(L),
+            "D": self.damping(q),
+            "G": jax.grad(self.potential)(q),
+            "A": self.input_map(q),
+        }
+
+    def energy(self, x):
+        (x,) = self._cast(x)
+        n = self.config.n
+        q, qd = x[:n], x[n:]
+        w = self.mass.factor(q).T @ qd
+        return 0.5 * w @ w + self.potential(q)
+
+
+class LagrangianNet(_LagrangianBase):
+    """Structured Lagrangian network, eq. 6 without a Hessian of a black-box L.
+
+    With L = T - V, T = ½ q̇ᵀ M(q) q̇, eq. 6 reads
+        M q̈ = A u - Ṁ q̇ + ½ ∂(q̇ᵀ M q̇)/∂q - ∂V/∂q - D q̇.
+    M = Lc Lcᵀ comes from the Cholesky network, so with w = Lcᵀ q̇:
+        Ṁ q̇ = L̇c w + Lc (L̇cᵀ q̇),  L̇c one Jacobian-vector product of the factor along q̇;
+        ½ ∂(q̇ᵀ M q̇)/∂q = ½ ∂‖Lc(q)ᵀ q̇‖²/∂q, the transpose of that same linearisation applied
+        to the cotangent q̇ wᵀ (one vector-Jacobian product, sharing the forward pass);
+    and q̈ by two triangular solves with Lc (no inverse, no factorisation).
+    """
+
+    def qdd(self, q, qd, u):
+        (q, qd, u) = self._cast(q, qd, u)
+        Lc, lin = jax.linearize(self.mass.factor, q)
+        Ldot = lin(qd)
+        w = Lc.T @ qd
+        mdot_qd = Ldot @ w + Lc @ (Ldot.T @ qd)
+        (dT_dq,) = jax.linear_transpose(lin, q)(jnp.outer(qd, w))
+        G = jax.grad(self.potential)(q)
+        rhs = self.input_map(q) @ u - mdot_qd + dT_dq - G - self.damping(q) @ qd
+        return cho_solve(Lc, rhs)
+
+
+class LagrangianHessianNet(_LagrangianBase):
+    """Literal Hessian form of eq. 6, the reference implementation.
+
+    L(q, q̇) = ½ q̇ᵀ M(q) q̇ - V(q) from the same sub-networks;
+        q̈ = (∂²L/∂q̇²)⁻¹ (A u - (∂²L/∂q ∂q̇) q̇ + ∂L/∂q - D q̇)
+    with the Hessians by ``jax.hessian``/``jax.jacfwd`` and the solve by a plain-jnp Cholesky
+    factorisation of ∂²L/∂q̇² (which the network does not know equals M).
+    """
+
+    def lagrangian(self, q, qd):
+        return 0.5 * qd @ self.mass(q) @ qd - self.potential(q)
+
+    def qdd(self, q, qd, u):
+        (q, qd, u) = self._cast(q, qd, u)
+        H = jax.hessian(self.lagrangian, argnums=1)(q, qd)
+        mixed = jax.jacfwd(jax.grad(self.lagrangian, argnums=1), argnums=0)(q, qd)
+        dL_dq = jax.grad(self.lagrangian, argnums=0)(q, qd)
+        rhs = self.input_map(q) @ u - mixed @ qd + dL_dq - self.damping(q) @ qd
+        return cho_solve(cholesky(0.5 * (H + H.T)), rhs)
+
+
+class HamiltonianNet(_PhysicsModel):
+    """Hamiltonian network, eq. 7, on x = (q, p).
+
+    H(q, p) = ½ pᵀ M⁻¹(q) p + V(q), M⁻¹ = Lc Lcᵀ from the Cholesky network (Fig. 2, eps > 0).
+        q̇ = ∂H/∂p = M⁻¹ p,
+        ṗ = -∂H/∂q - D(q) ∂H/∂p + A(q) u = -∂H/∂q - D(q) q̇ + A(q) u.
+    Eq. 7's block matrix multiplies D by ∂H/∂p, i.e. by the velocity q̇, which is the
+    dissipative force of eq. 4 (F_d = D q̇); D is not applied to p.
+    """
+
+    @property
+    def state_kind(self) -> str:
+        return "momentum"
+
+    def _kinetic_and_potential(self, q, p):
+        Lc = self.mass.factor(q)
+        w = Lc.T @ p
+        return 0.5 * w @ w + self.potential(q), Lc
+
+    def vector_field(self, x, u):
+        (x, u) = self._cast(x, u)
+        n = self.config.n
+        q, p = x[:n], x[n:]
+        dH_dq, Lc = jax.grad(self._kinetic_and_potential, has_aux=True)(q, p)
+        qdot = Lc @ (Lc.T @ p)
+        pdot = -dH_dq - self.damping(q) @ qdot + self.input_map(q) @ u
+        return jnp.concatenate([qdot, pdot])
+
+    def matrices(self, q) -> dict:
+        """Learned {"M_inv", "M", "D", "G", "A"} at one q (M by two triangular solves)."""
+        (q,) = self._cast(q)
+        Lc = self.mass.factor(q)
+        return {
+            "M_inv": Lc @ Lc.T,
+            "M": cho_inverse(Lc),
+            "D": self.damping(q),
+            "G": jax.grad(self.potential)(q),
+            "A": self.input_map(q),
+        }
+
+    def energy(self, x):
+        (x,) = self._cast(x)
+        n = self.config.n
+        return self._kinetic_and_potential(x[:n], x[n:])[0]
+
+
+class BlackBoxNet(DynamicsModel):
+    """Black-box baseline (the paper's FNN): an MLP from [q, v, u] to the state derivative (2n)."""
+
+    mlp: eqx.nn.MLP
+
+    @property
+    def state_kind(self) -> str:
+        return self.config.state_kind
+
+    def vector_field(self, x, u):
+        (x, u) = self._cast(x, u)
+        return self.mlp(jnp.concatenate([x, u]))
+
+
+def _physics_parts(config: ModelConfig, key, *, mass_eps):
+    n, m, dt = config.n, config.m, config.dtype
+    kM, kV, kD, kA = jax.random.split(key, 4)
+    act = config.activation
+    mass = CholeskyField(n, *config.mass, act, mass_eps, key=kM, dtype=dt)
+    potential = ScalarField(n, *config.potential, act, key=kV, dtype=dt)
+    if config.damping_form == "network":
+        damping = CholeskyField(n, *config.damping, act, 0.0, key=kD, dtype=dt)
+    elif config.damping_form == "constant":
+        damping = ConstantCholesky(n, 0.0, key=kD, dtype=dt)
+    else:
+        damping = ZeroMatrix((n, n))
+    if m == 0:
+        input_map = ZeroMatrix((n, 0))
+    elif config.input_form == "network":
+        input_map = MatrixField(n, n, m, *config.input, act, key=kA, dtype=dt)
+    else:
+        input_map = ConstantMatrix(n, m, key=kA, dtype=dt)
+    return {"mass": mass, "potential": potential, "damping": damping, "input_map": input_map}
+
+
+def make_model(config: ModelConfig, *, key) -> DynamicsModel:
+    """Build a freshly initialised model of ``config.kind`` with parameters in ``config.dtype``."""
+    if not isinstance(config, ModelConfig):
+        raise UserError(f"config must be a ModelConfig, got {type(config).__name__}")
+    if config.dtype == "float64" and not jax.config.jax_enable_x64:
+        raise UserError(
+            "model dtype is 'float64' but JAX runs in 32 bits: call "
+            "jax.config.update('jax_enable_x64', True) first, or choose dtype 'float32'"
+        )
+    if config.kind == "blackbox":
+        n, m = config.n, config.m
+        mlp = make_mlp(
+            2 * n + m, 2 * n, *config.hidden, config.activation, key=key, dtype=config.dtype
+        )
+        return BlackBoxNet(config=config, mlp=mlp)
+    cls = {
+        "lagrangian": LagrangianNet,
+        "lagrangian-hessian": LagrangianHessianNet,
+        "hamiltonian": HamiltonianNet,
+    }[config.kind]
+    return cls(config=config, **_physics_parts(config, key, mass_eps=config.eps))

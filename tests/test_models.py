@@ -1,0 +1,319 @@
+"""learn.models: structured vs Hessian eq. 6, analytic systems, eq. 7, configs, vmap, tracing."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from learn.errors import UserError
+from learn.linalg import cholesky
+from learn.models import (
+    BlackBoxNet,
+    HamiltonianNet,
+    LagrangianHessianNet,
+    LagrangianNet,
+    ModelConfig,
+    make_model,
+)
+
+G_ACC = 9.8
+
+
+# --- analytic fields following the sub-network protocol of learn.nets -------------------------
+class Field(eqx.Module):
+    fn: Callable = eqx.field(static=True)
+
+    def __call__(self, q):
+        return self.fn(q)
+
+
+class MassField(eqx.Module):
+    """A known SPD matrix field; factor() by the plain-jnp Cholesky."""
+
+    fn: Callable = eqx.field(static=True)
+
+    def factor(self, q):
+        return cholesky(self.fn(q))
+
+    def __call__(self, q):
+        return self.fn(q)
+
+
+# double pendulum, m = l = 1 (eq. 26), angles from the downward vertical
+def dp_mass(q):
+    c = jnp.cos(q[0] - q[1])
+    return jnp.array([[2.0, c], [c, 1.0]])
+
+
+def dp_mass_inv(q):
+    c = jnp.cos(q[0] - q[1])
+    return jnp.array([[1.0, -c], [-c, 2.0]]) / (2.0 - c**2)
+
+
+def dp_potential(q):
+    return -2.0 * G_ACC * jnp.cos(q[0]) - G_ACC * jnp.cos(q[1])
+
+
+D_CONST = np.array([[0.3, 0.1], [0.1, 0.2]])
+A_CONST = np.array([[1.0], [0.5]])
+
+
+def dp_damping(q):
+    return jnp.asarray(D_CONST) * (1.0 + 0.1 * jnp.sin(q[0]))
+
+
+def dp_input(q):
+    return jnp.asarray(A_CONST) * jnp.array([[1.0], [jnp.cos(q[1])]])
+
+
+def dp_qdd_numpy(q, qd, u):
+    """Hand-derived double pendulum with damping and input, solved by numpy."""
+    s, c = np.sin(q[0] - q[1]), np.cos(q[0] - q[1])
+    M = np.array([[2.0, c], [c, 1.0]])
+    Cqd = np.array([s * qd[1] ** 2, -s * qd[0] ** 2])
+    G = np.array([2 * G_ACC * np.sin(q[0]), G_ACC * np.sin(q[1])])
+    D = D_CONST * (1.0 + 0.1 * np.sin(q[0]))
+    A = A_CONST * np.array([[1.0], [np.cos(q[1])]])
+    return np.linalg.solve(M, A @ u - Cqd - G - D @ qd)
+
+
+def dp_fields(mass_fn):
+    return dict(
+        mass=MassField(mass_fn),
+        potential=Field(dp_potential),
+        damping=Field(dp_damping),
+        input_map=Field(dp_input),
+    )
+
+
+def _states(key, n, m, k):
+    kx, ku = jax.random.split(key)
+    return jax.random.normal(kx, (k, 2 * n)), jax.random.normal(ku, (k, m))
+
+
+# --- eq. 6: structured == Hessian form ---------------------------------------------------------
+@pytest.mark.parametrize(
+    "n,m,damping_form,activation",
+    [
+        (1, 0, "network", "softplus"),
+        (2, 1, "constant", "tanh"),
+        (3, 2, "network", "softplus"),
+        (6, 6, "none", "silu"),
+    ],
+)
+def test_structured_lagrangian_equals_hessian_form(getkey, n, m, damping_form, activation):
+    cfg = ModelConfig(
+        kind="lagrangian",
+        n=n,
+        m=m,
+        mass=(16, 2),
+        potential=(16, 2),
+        damping=(8, 1),
+        input=(8, 1),
+        damping_form=damping_form,
+        activation=activation,
+    )
+    key = getkey()
+    structured = make_model(cfg, key=key)
+    hessian = make_model(
+        ModelConfig.from_dict({**cfg.to_dict(), "kind": "lagrangian-hessian"}), key=key
+    )
+    assert isinstance(structured, LagrangianNet) and isinstance(hessian, LagrangianHessianNet)
+    x, u = _states(getkey(), n, m, 5)
+    a = jax.jit(jax.vmap(structured.vector_field))(x, u)
+    b = jax.jit(jax.vmap(hessian.vector_field))(x, u)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-10)
+    assert float(jnp.max(jnp.abs(a[:, n:]))) > 1e-3  # a non-trivial comparison
+
+
+@pytest.mark.parametrize("cls", [LagrangianNet, LagrangianHessianNet])
+def test_lagrangian_matches_analytic_double_pendulum(cls):
+    model = cls(config=ModelConfig(kind="lagrangian", n=2, m=1), **dp_fields(dp_mass))
+    rng = np.random.default_rng(3)
+    qdd = jax.jit(model.qdd)
+    for _ in range(4):
+        q, qd, u = rng.normal(size=2), rng.normal(size=2), rng.normal(size=1)
+        np.testing.assert_allclose(qdd(q, qd, u), dp_qdd_numpy(q, qd, u), rtol=1e-12, atol=1e-12)
+    mats = model.matrices(jnp.array([0.3, -0.4]))
+    np.testing.assert_allclose(mats["M"], dp_mass(jnp.array([0.3, -0.4])), atol=1e-14)
+    np.testing.assert_allclose(mats["M"] @ mats["M_inv"], np.eye(2), atol=1e-12)
+    np.testing.assert_allclose(
+        mats["G"], [2 * G_ACC * np.sin(0.3), G_ACC * np.sin(-0.4)], atol=1e-12
+    )
+
+
+# --- eq. 7 -------------------------------------------------------------------------------------
+def test_hamiltonian_matches_analytic_vector_field():
+    model = HamiltonianNet(
+        config=ModelConfig(kind="hamiltonian", n=2, m=1), **dp_fields(dp_mass_inv)
+    )
+    rng = np.random.default_rng(4)
+    f = jax.jit(model.vector_field)
+    for _ in range(4):
+        q, p, u = rng.normal(size=2), rng.normal(size=2), rng.normal(size=1)
+        s, c = np.sin(q[0] - q[1]), np.cos(q[0] - q[1])
+        M = np.array([[2.0, c], [c, 1.0]])
+        qdot = np.linalg.solve(M, p)
+        # dH/dq = -1/2 qdot^T dM/dq qdot + dV/dq, dM/dq1 = -s [[0,1],[1,0]] = -dM/dq2
+        dH_dq = np.array([s * qdot[0] * qdot[1], -s * qdot[0] * qdot[1]])
+        dH_dq += [2 * G_ACC * np.sin(q[0]), G_ACC * np.sin(q[1])]
+        D = D_CONST * (1.0 + 0.1 * np.sin(q[0]))
+        A = A_CONST * np.array([[1.0], [np.cos(q[1])]])
+        pdot = -dH_dq - D @ qdot + A @ u
+        np.testing.assert_allclose(
+            f(np.concatenate([q, p]), u), np.concatenate([qdot, pdot]), rtol=1e-12, atol=1e-12
+        )
+    mats = model.matrices(jnp.array([0.2, 0.1]))
+    np.testing.assert_allclose(mats["M"], dp_mass(jnp.array([0.2, 0.1])), atol=1e-12)
+
+
+def test_hamiltonian_and_lagrangian_agree_on_the_same_system():
+    lag = LagrangianNet(config=ModelConfig(kind="lagrangian", n=2, m=1), **dp_fields(dp_mass))
+    ham = HamiltonianNet(config=ModelConfig(kind="hamiltonian", n=2, m=1), **dp_fields(dp_mass_inv))
+    q, qd, u = jnp.array([0.4, -1.1]), jnp.array([0.7, 0.2]), jnp.array([0.5])
+    p = dp_mass(q) @ qd
+    xl = lag.vector_field(jnp.concatenate([q, qd]), u)
+    xh = ham.vector_field(jnp.concatenate([q, p]), u)
+    np.testing.assert_allclose(xh[:2], qd, atol=1e-12)
+    # pdot = d/dt (M qd) = Mdot qd + M qdd
+    Mdot = jax.jvp(dp_mass, (q,), (qd,))[1]
+    np.testing.assert_allclose(xh[2:], Mdot @ qd + dp_mass(q) @ xl[2:], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian"])
+def test_power_balance_of_random_networks(getkey, kind):
+    """dE/dt = q̇ᵀ (A u - D q̇) exactly: conservative when undamped and unforced."""
+    n, m = 3, 2
+    model = make_model(
+        ModelConfig(kind=kind, n=n, m=m, mass=(16, 2), potential=(16, 2)), key=getkey()
+    )
+    x, u = _states(getkey(), n, m, 3)
+    for xi, ui in zip(x, u, strict=True):
+        xdot = model.vector_field(xi, ui)
+        dE = jax.grad(model.energy)(xi) @ xdot
+        mats = model.matrices(xi[:n])
+        v = xdot[:n]
+        np.testing.assert_allclose(dE, v @ (mats["A"] @ ui - mats["D"] @ v), atol=1e-10)
+
+
+# --- all kinds: shapes, dtypes, matrices -------------------------------------------------------
+@pytest.mark.parametrize("kind", ["lagrangian", "lagrangian-hessian", "hamiltonian", "blackbox"])
+@pytest.mark.parametrize("m", [0, 2])
+def test_every_kind_builds_and_runs(getkey, kind, m):
+    n = 2
+    cfg = ModelConfig(kind=kind, n=n, m=m, mass=(8, 1), potential=(8, 1), hidden=(8, 1))
+    model = make_model(cfg, key=getkey())
+    x, u = _states(getkey(), n, m, 1)
+    xdot = model.vector_field(x[0], u[0])
+    assert xdot.shape == (2 * n,) and xdot.dtype == jnp.float64
+    assert model.state_kind == ("momentum" if kind == "hamiltonian" else "velocity")
+    if kind == "blackbox":
+        with pytest.raises(UserError, match="no physical matrices"):
+            model.matrices(x[0, :n])
+        return
+    mats = model.matrices(x[0, :n])
+    assert mats["A"].shape == (n, m) and mats["G"].shape == (n,)
+    for name in ("M", "M_inv", "D"):
+        assert mats[name].shape == (n, n)
+    assert np.all(np.linalg.eigvalsh(np.asarray(mats["M"])) > 0)
+    if kind == "hamiltonian":
+        with pytest.raises(UserError, match="Lagrangian"):
+            model.qdd(x[0, :n], x[0, n:], u[0])
+
+
+def test_float32_models_have_float32_parameters_and_outputs(getkey):
+    for kind in ("lagrangian", "hamiltonian", "blackbox"):
+        model = make_model(ModelConfig(kind=kind, n=2, m=1, dtype="float32"), key=getkey())
+        leaves = jax.tree_util.tree_leaves(eqx.filter(model, eqx.is_array))
+        assert leaves and all(leaf.dtype == jnp.float32 for leaf in leaves)
+        out = model.vector_field(np.ones(4), np.ones(1))  # float64 data is cast
+        assert out.dtype == jnp.float32
+
+
+def test_blackbox_state_kind_and_input_concatenation(getkey):
+    cfg = ModelConfig(kind="blackbox", n=2, m=1, hidden=(8, 1), state_kind="momentum")
+    model = make_model(cfg, key=getkey())
+    assert isinstance(model, BlackBoxNet) and model.state_kind == "momentum"
+    x, u = jnp.arange(4.0), jnp.array([0.5])
+    np.testing.assert_allclose(model.vector_field(x, u), model.mlp(jnp.array([0, 1, 2, 3, 0.5])))
+
+
+def test_vmap_equals_loop(getkey):
+    model = make_model(ModelConfig(kind="lagrangian", n=3, m=1, mass=(16, 2)), key=getkey())
+    x, u = _states(getkey(), 3, 1, 4)
+    batched = jax.vmap(model.vector_field)(x, u)
+    for k in range(4):
+        np.testing.assert_allclose(batched[k], model.vector_field(x[k], u[k]), atol=1e-13)
+
+
+# --- config -------------------------------------------------------------------------------------
+def test_config_json_round_trip():
+    import json
+
+    cfg = ModelConfig(
+        kind="hamiltonian",
+        n=3,
+        m=0,
+        mass=(32, 2),
+        damping_form="constant",
+        input_form="constant",
+        eps=1e-2,
+        dtype="float32",
+    )
+    again = ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
+    assert again == cfg and hash(again) == hash(cfg)
+    assert cfg.state_kind == "momentum"
+    assert ModelConfig(kind="blackbox", n=1, m=0).state_kind == "velocity"
+
+
+@pytest.mark.parametrize(
+    "kwargs,match",
+    [
+        ({"kind": "neural"}, "model kind must be one of"),
+        ({"n": 0}, "model n must be an integer >= 1"),
+        ({"m": -1}, "model m must be an integer >= 0"),
+        ({"mass": (0, 2)}, "mass must be"),
+        ({"activation": "swish2"}, "activation must be one of"),
+        ({"damping_form": "rayleigh"}, "damping_form must be one of"),
+        ({"input_form": "table"}, "input_form must be one of"),
+        ({"eps": -1.0}, "eps must be"),
+        ({"dtype": "float16"}, "dtype must be one of"),
+        ({"state_kind": "momentum"}, "state_kind of a lagrangian model must be 'velocity'"),
+    ],
+)
+def test_config_rejects_bad_values(kwargs, match):
+    with pytest.raises(UserError, match=match):
+        ModelConfig(**{"kind": "lagrangian", "n": 2, "m": 1, **kwargs})
+
+
+def test_config_from_dict_rejects_unknown_and_missing_keys():
+    with pytest.raises(UserError, match=r"unknown model config key\(s\) \['width'\]"):
+        ModelConfig.from_dict({"kind": "blackbox", "n": 1, "m": 0, "width": 3})
+    with pytest.raises(UserError, match=r"missing key\(s\) \['m'\]"):
+        ModelConfig.from_dict({"kind": "blackbox", "n": 1})
+
+
+# --- jit: no recompilation on the second training-like step -----------------------------------
+def test_second_jitted_step_does_not_retrace(getkey):
+    model = make_model(
+        ModelConfig(kind="lagrangian", n=2, m=1, mass=(8, 1), potential=(8, 1)), key=getkey()
+    )
+
+    @eqx.filter_jit
+    @eqx.debug.assert_max_traces(max_traces=1)
+    def train_step(model, x, u, target):
+        def loss(mdl):
+            return jnp.mean((jax.vmap(mdl.vector_field)(x, u) - target) ** 2)
+
+        val, grads = eqx.filter_value_and_grad(loss)(model)
+        return val, eqx.apply_updates(model, jax.tree_util.tree_map(lambda g: -1e-3 * g, grads))
+
+    for k in range(3):
+        x, u = _states(getkey(), 2, 1, 8)
+        val, model = train_step(model, x, u, jnp.full((8, 4), float(k)))
+        assert np.isfinite(val)
