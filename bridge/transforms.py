@@ -798,29 +798,32 @@ def _subset(side: MatrixStack, mask: np.ndarray) -> MatrixStack:
 
 
 def compare_direct(true, learned, q=None, *, blocks=None) -> TransformResult:
-    """No transform (P = I): direct relative errors, for Hamiltonian models (Tables II, VII,
-    IX). ``params["residual_M_inv"]`` and ``params["residuals_M_inv"]`` compare M^-1 itself."""
-    true, learned, _, blocks = _prepare(true, learned, q, blocks)
+    """No transform (P = I): direct relative errors of M^-1, D, A, G, the comparison for
+    Hamiltonian models (Tables II, VII, IX). ``M`` may be requested in ``blocks`` too;
+    ``params["residual_M"]`` holds it in any case."""
+    true, learned, _, _ = _prepare(true, learned, q, None)
+    allowed = ("M_inv", *BLOCKS)
+    if blocks is None:
+        blocks = tuple(
+            k
+            for k in allowed
+            if k != "M" and true.has(k) and learned.has(k) and true.block(k).shape[2] > 0
+        )
+    else:
+        blocks = (blocks,) if isinstance(blocks, str) else tuple(blocks)
+        for k in blocks:
+            if k not in allowed:
+                raise UserError(f"blocks: unknown matrix {k!r}; expected some of {list(allowed)}")
+            for side in (true, learned):
+                if not side.has(k):
+                    raise UserError(
+                        f"blocks: {k} requested but {side.name} has {list(side.present)}"
+                    )
     P = np.broadcast_to(np.eye(true.n), (true.N, true.n, true.n)).copy()
-    res = _result(
-        "direct",
-        P,
-        true,
-        learned,
-        blocks,
-        Status.SUCCESS,
-        "no transform: learned compared with true as they are",
-        {},
-    )
-    # M^-1 compared as itself (M^-1 - M^-1_true), not through M
-    Xi, Xhi = true.mass_inverse(), learned.mass_inverse()
-    err = np.linalg.norm(Xhi - Xi, axis=(1, 2))
-    den = np.linalg.norm(Xi, axis=(1, 2))
-    params = {
-        "blocks": list(blocks),
-        "residuals_M_inv": err / den,
-        "residual_M_inv": float(np.sqrt(np.sum(err**2) / np.sum(den**2))),
-    }
+    msg = "no transform: learned compared with true as they are"
+    res = _result("direct", P, true, learned, blocks, Status.SUCCESS, msg, {})
+    mres, mtot = _residuals(P, true, learned, ("M",))
+    params = {"blocks": list(blocks), "residuals_M": mres["M"], "residual_M": mtot["M"]}
     return TransformResult(**{**res.__dict__, "params": params})
 
 

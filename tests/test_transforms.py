@@ -220,7 +220,10 @@ def test_direct_comparison_for_hamiltonian(q, true):
     learned["D"] = true["D"] * 0.9
     res = compare_direct(true, learned, q)
     np.testing.assert_array_equal(res.P, np.broadcast_to(np.eye(3), (len(q), 3, 3)))
-    np.testing.assert_allclose(res.params["residual_M_inv"], 0.02, rtol=1e-9)
+    assert list(res.residual) == ["M_inv", "D", "A", "G"]
+    np.testing.assert_allclose(res.residual["M_inv"], 0.02, rtol=1e-9)
+    np.testing.assert_allclose(res.residuals["M_inv"], 0.02, rtol=1e-9)
+    np.testing.assert_allclose(res.params["residual_M"], 1 - 1 / 1.02, rtol=1e-9)
     np.testing.assert_allclose(res.residual["D"], 0.1, rtol=1e-9)
     assert res.residual["G"] == 0 and res.residual["A"] == 0
     assert res.scale_all == 1 and res.distance_all == 0
