@@ -29,7 +29,7 @@ def _save(fig: Figure, path: str | Path | None) -> Figure:
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(p.stem + ".tmp" + p.suffix)
-        fig.savefig(tmp, dpi=110)
+        fig.savefig(tmp, dpi=100)
         tmp.replace(p)
     return fig
 
@@ -45,38 +45,45 @@ def plot_entries_scatter(
 ) -> Figure:
     """Scatter of true vs learned entries per matrix, with the identity line.
 
-    With a transform ``result`` (:class:`bridge.transforms.TransformResult`) the learned
-    matrices are mapped first (``P X^``); ``M_inv`` is always compared as it is. Saved to
-    ``path`` (PNG, PDF, SVG by suffix) when given; the figure is returned.
+    ``result``: ``None`` (learned as it is), one transform result
+    (:class:`bridge.transforms.TransformResult`: the learned matrices are mapped first,
+    ``P X^``) or a dict of them (one row of panels per transform). ``M_inv`` is always compared
+    as it is. Saved to ``path`` (PNG, PDF, SVG by suffix) when given; the figure is returned.
     """
     true, learned = as_stack(true, "true"), as_stack(learned, "learned")
-    keys = [k for k in matrices if true.has(k) and learned.has(k)]
+    keys = [k for k in matrices if true.has(k) and learned.has(k) and true.block(k).size > 0]
     if not keys:
         raise UserError(
             f"matrices: none of {list(matrices)} is given on both sides "
             f"(true {list(true.present)}, learned {list(learned.present)})"
         )
-    fig = Figure(figsize=(3.2 * len(keys), 3.4), layout="constrained")
-    axes = fig.subplots(1, len(keys), squeeze=False)[0]
-    for ax, k in zip(axes, keys, strict=True):
-        x = true.block(k)
-        y = learned.block(k)
-        mapped = result is not None and k != "M_inv"
-        if mapped:
-            y = result.P @ y
-        x, y = x.ravel(), y.ravel()
-        ok = np.isfinite(y)
-        ax.scatter(x[ok], y[ok], s=8, alpha=0.6, label="P X^" if mapped else "X^")
-        lo = float(min(x.min(), y[ok].min() if ok.any() else x.min()))
-        hi = float(max(x.max(), y[ok].max() if ok.any() else x.max()))
-        pad = 0.05 * (hi - lo or 1.0)
-        ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8, label="identity")
-        ax.set_title(_TITLES.get(k, k))
-        ax.set_xlabel("true")
-        ax.set_ylabel("P · learned" if mapped else "learned")
-        ax.legend(fontsize="small")
-    if title or result is not None:
-        fig.suptitle(title or f"true vs learned entries ({result.name})")
+    if isinstance(result, Mapping):
+        rows = list(result.items())
+        if not rows:
+            raise UserError("result: expected at least one transform result")
+    else:
+        rows = [(getattr(result, "name", None), result)]
+    fig = Figure(figsize=(3.0 * len(keys), 3.0 * len(rows) + 0.4))
+    axes = fig.subplots(len(rows), len(keys), squeeze=False)
+    for (name, res), row in zip(rows, axes, strict=True):
+        for ax, k in zip(row, keys, strict=True):
+            x = true.block(k)
+            y = learned.block(k)
+            mapped = res is not None and k != "M_inv"
+            if mapped:
+                y = res.P @ y
+            x, y = x.ravel(), y.ravel()
+            ok = np.isfinite(y)
+            ax.scatter(x[ok], y[ok], s=8, alpha=0.6)
+            lo = float(min(x.min(), y[ok].min() if ok.any() else x.min()))
+            hi = float(max(x.max(), y[ok].max() if ok.any() else x.max()))
+            pad = 0.05 * (hi - lo or 1.0)
+            ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8)
+            ax.set_title(_TITLES.get(k, k) if name is None else f"{_TITLES.get(k, k)}, {name}")
+            ax.set_xlabel("true")
+            ax.set_ylabel("P · learned" if mapped else "learned")
+    fig.suptitle(title or "true vs learned entries (dashed: identity)")
+    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -109,7 +116,7 @@ def plot_transform_entries(
     else:
         order = np.argsort(q[:, coordinate], kind="stable")
         x, xlabel = q[order, coordinate], f"q[{coordinate}]"
-    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.6), layout="constrained")
+    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.6))
     axes = fig.subplots(n, n, squeeze=False, sharex=True)
     for name, r in results.items():
         P = r.P[order]
@@ -127,4 +134,5 @@ def plot_transform_entries(
         axes[-1, i].set_xlabel(xlabel)
     axes[0, 0].legend(fontsize="x-small")
     fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
+    fig.tight_layout()
     return _save(fig, path)

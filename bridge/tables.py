@@ -188,14 +188,14 @@ def transform_table(
     cols, tex = [], {}
     for group, side in (("true", true), ("learned", learned)):
         for k in matrices:
-            if not side.has(k):
+            if not side.has(k) or side.block(k).shape[2] == 0:
                 continue
             cols.append((group, k, side.block(k)))
             body = _LATEX_MATRIX.get(k, k)
             tex[(group, k)] = f"${body}(q)$" if group == "true" else f"$\\hat{{{body}}}(q)$"
     if result is not None:
         for k in matrices:
-            if k in ("M_inv",) or not (true.has(k) and learned.has(k)):
+            if k == "M_inv" or not (true.has(k) and learned.has(k)) or true.block(k).size == 0:
                 continue
             cols.append(("transformed", k, result.P @ learned.block(k)))
             body = _LATEX_MATRIX.get(k, k)
@@ -209,9 +209,11 @@ def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
     """One row per transform: status, relative residual of each matrix over all q, their
     root mean square, the nearest multiple of I (scale c, alpha = 1/c, relative distance) and,
     for ``smooth``, the held-out residual."""
+    order = ("M_inv", "M", "D", "A", "G")
     blocks: list[str] = []
     for r in results.values():
         blocks += [k for k in r.residual if k not in blocks]
+    blocks.sort(key=lambda k: order.index(k) if k in order else len(order))
     spans = [Span("", "transform"), Span("", "status")]
     spans += [Span("residual", k, 1, f"${_LATEX_MATRIX.get(k, k)}$") for k in blocks]
     spans += [
@@ -219,7 +221,7 @@ def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
         Span("P ~ cI", "c"),
         Span("P ~ cI", "alpha", 1, "$\\alpha = 1/c$"),
         Span("P ~ cI", "distance"),
-        Span("held-out", "residual"),
+        Span("held-out", "residual", 1, "residual (max)"),
     ]
     rows = []
     for name, r in results.items():

@@ -33,7 +33,12 @@ def test_scatter_points_lie_on_identity_after_transform(tmp_path):
     fig = plot_entries_scatter(true, learned, res, path=path)
     assert path.is_file() and path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert not list(path.parent.glob("*.tmp*"))
-    assert [ax.get_title() for ax in fig.axes] == ["M(q)", "D(q)", "G(q)", "A(q)"]
+    assert [ax.get_title() for ax in fig.axes] == [
+        "M(q), pointwise",
+        "D(q), pointwise",
+        "G(q), pointwise",
+        "A(q), pointwise",
+    ]
     pts = fig.axes[0].collections[0].get_offsets()
     assert pts.shape == (12 * 4, 2)
     np.testing.assert_allclose(pts[:, 0], true["M"].ravel())
@@ -42,6 +47,18 @@ def test_scatter_points_lie_on_identity_after_transform(tmp_path):
     raw = plot_entries_scatter(true, learned).axes[2].collections[0].get_offsets()
     np.testing.assert_allclose(raw[:, 1], learned["G"].ravel())
     assert np.max(np.abs(raw[:, 1] - raw[:, 0])) > 0.1
+
+
+def test_scatter_one_row_per_transform():
+    q, true, learned = stacks()
+    results = {"direct": None, "alpha": fit_alpha(true, learned, q)}
+    fig = plot_entries_scatter(true, learned, results, matrices=("M", "G"))
+    assert [ax.get_title() for ax in fig.axes] == ["M(q), direct", "G(q), direct",
+                                                   "M(q), alpha", "G(q), alpha"]  # fmt: skip
+    np.testing.assert_allclose(fig.axes[1].collections[0].get_offsets()[:, 1], learned["G"].ravel())
+    P = results["alpha"].P
+    ref = (P @ learned["G"][:, :, None]).ravel()
+    np.testing.assert_allclose(fig.axes[3].collections[0].get_offsets()[:, 1], ref)
 
 
 def test_scatter_hamiltonian_compares_M_inv_directly():

@@ -1,0 +1,134 @@
+"""bridge.analysis: true (CasADi) and learned (JAX) models evaluated at the same q, every fit
+run, and the report written."""
+
+from __future__ import annotations
+
+import json
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bridge.analysis import AnalysisResult, analyze, sample_q, summary_numbers, write_report
+from bridge.errors import UserError
+from bridge.tables import read_csv
+from learn.models import ModelConfig, make_model
+from symbolic.model import TrueModel
+
+TABLE_V_Q = np.array([[0.5, 0.5], [0.0, 0.0], [0.0, -0.8]])
+
+
+class ScaledTask1(eqx.Module):
+    """A learned stand-in for Task 1 (eq. 25) that is ``alpha`` times the true model, the
+    relation Table V reports (alpha = 0.302); ``matrices`` takes one q, as learn's models do."""
+
+    alpha: float = 0.302
+
+    def matrices(self, q):
+        K = jnp.array([[2.1, -2.1], [-2.1, 6.7]])
+        m = jnp.array([1.0, 1.8])
+        return {
+            "M": self.alpha * jnp.diag(m),
+            "M_inv": jnp.diag(1.0 / (self.alpha * m)),
+            "D": self.alpha * jnp.array([[0.3, -0.3], [-0.3, 0.3]]),
+            "G": self.alpha * K @ q,
+            "A": jnp.zeros((2, 0)),
+        }
+
+
+@pytest.fixture(scope="module")
+def task1():
+    return TrueModel("task1")
+
+
+def test_table_v_alpha_from_the_true_model(task1, tmp_path):
+    q = np.concatenate([TABLE_V_Q, sample_q([-1, -1], [1, 1], 17, seed=1)])
+    result = analyze(task1, ScaledTask1(), q, options={"smooth": {"degree": 1}})
+    assert isinstance(result, AnalysisResult)
+    assert list(result.results) == ["pointwise", "joint", "alpha", "constant", "smooth"]
+    alpha = result.results["alpha"]
+    assert abs(alpha.params["alpha"] - 0.302) < 1e-12
+    for name, r in result.results.items():
+        assert str(r.status) == "success", name
+        assert max(r.residual.values()) < 1e-12, name
+        assert abs(r.alpha - 0.302) < 1e-10 and r.distance_all < 1e-10, name
+    # at q = [0, 0] the true G is zero, and so is the learned one: residual 0, not NaN
+    assert result.results["pointwise"].residuals["G"][1] == 0.0
+    assert result.true.A.shape == (20, 2, 0) and "A" not in alpha.residual
+
+    paths = write_report(result, tmp_path / "report", max_table_q=3)
+    for name in ("report.md", "analysis.json", "summary.csv", "table_alpha.tex", "P_entries.png"):
+        assert paths[name].is_file(), name
+    data = json.loads(paths["analysis.json"].read_text())
+    assert data["transforms"]["alpha"]["params"]["alpha"] == alpha.params["alpha"]
+    np.testing.assert_allclose(data["q"], q)
+    np.testing.assert_allclose(data["true"]["M"][0], [[1.0, 0.0], [0.0, 1.8]])
+    columns, rows = read_csv(paths["table_pointwise.csv"])
+    assert columns[:3] == ("q", "true M[1]", "true M[2]") and len(rows) == 2 * len(q)
+    assert rows[1][columns.index("true G")] == pytest.approx(2.3)  # eq. 25 at q = [0.5, 0.5]
+    report = paths["report.md"].read_text()
+    assert "alpha = 0.302" in report and "| alpha | success |" in report
+    assert "First 3 of 20 q" in report and "![P entries](P_entries.png)" in report
+    assert summary_numbers(result)["alpha"]["alpha"] == pytest.approx(0.302, abs=1e-12)
+
+
+def test_hamiltonian_model_gets_the_direct_comparison(task1, tmp_path):
+    config = ModelConfig(
+        kind="hamiltonian", n=2, m=0, mass=(8, 1), potential=(8, 1), damping=(4, 1)
+    )
+    model = make_model(config, key=jax.random.PRNGKey(0))
+    q = sample_q([-1, -1], [1, 1], 8, seed=2)
+    result = analyze(task1, model, q, transforms=("pointwise",))
+    assert list(result.results) == ["direct", "pointwise"]
+    direct = result.results["direct"]
+    assert list(direct.residual) == ["M_inv", "D", "G"]
+    one = np.asarray(model.matrices(jnp.asarray(q[3]))["M_inv"])  # vmap equals one call
+    np.testing.assert_allclose(result.learned.M_inv[3], one, rtol=1e-12)
+    Minv = result.learned.M_inv
+    ref = np.linalg.norm(Minv - task1.M_inv(q)) / np.linalg.norm(task1.M_inv(q))
+    assert direct.residual["M_inv"] == pytest.approx(ref, rel=1e-12)
+    # pointwise P = M M^-1 (learned M^-1 used directly): exact for M whatever the network
+    assert result.results["pointwise"].residual["M"] < 1e-12
+    paths = write_report(result, tmp_path, plots=False)
+    assert "true M_inv[1]" in read_csv(paths["table_direct.csv"])[0]
+    assert not any(p.suffix == ".png" for p in paths.values())
+
+
+def test_already_evaluated_matrices_are_accepted(task1):
+    q = TABLE_V_Q
+    true = {k: getattr(task1, k)(q) for k in ("M", "D", "G")}
+    learned = {k: 2.0 * v for k, v in true.items()}
+    result = analyze(true, learned, q, transforms=("alpha", "direct"))
+    assert result.results["alpha"].params["alpha"] == pytest.approx(2.0, abs=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"transforms": ("procrustes",)}, "transform: unknown 'procrustes'"),
+        ({"options": {"smooth": {"degree": 2}}, "transforms": ("alpha",)}, "not among"),
+        ({"options": {"alpha": {"degree": 2}}, "transforms": ("alpha",)}, "unknown option"),
+        ({"q": np.zeros((3, 3))}, "q: expected length n = 2"),
+    ],
+)
+def test_bad_input(task1, kwargs, match):
+    q = kwargs.pop("q", TABLE_V_Q)
+    with pytest.raises(UserError, match=match):
+        analyze(task1, ScaledTask1(), q, **kwargs)
+
+
+def test_black_box_and_bad_out_dir(task1, tmp_path):
+    box = make_model(
+        ModelConfig(kind="blackbox", n=2, m=0, hidden=(4, 1)), key=jax.random.PRNGKey(0)
+    )
+    with pytest.raises(Exception, match="no physical matrices") as info:
+        analyze(task1, box, TABLE_V_Q)
+    assert getattr(type(info.value), "softpinn_user_error", False)
+    result = analyze(task1, ScaledTask1(), TABLE_V_Q, transforms=("alpha",))
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(UserError, match="is not a directory"):
+        write_report(result, tmp_path / "file")
+    with pytest.raises(UserError, match="high: expected >= low"):
+        sample_q([0, 1], [1, 0], 3)
