@@ -30,7 +30,7 @@ from .spec import ModelSpec
 
 #: Gauss-Legendre order for the zeta integrals; 1e-13 relative against order 40 for
 #: |theta| <= 2 pi (``tests/test_energies.py``).
-DEFAULT_ORDER = 12
+DEFAULT_ORDER = 10
 
 
 def gauss_legendre(order: int) -> tuple[np.ndarray, np.ndarray]:
@@ -150,7 +150,7 @@ class PlateTerms(Terms):
 
     @cached_property
     def v(self):
-        return self.Jv @ self.qd
+        return ca.jtimes(self.p, self.q, self.qd)
 
     @cached_property
     def wb(self):
@@ -192,3 +192,119 @@ class PlateTerms(Terms):
             wbd = ca.jtimes(wb, self.q, self.qd)
             out = out + self.Jb.T @ (I @ wbd + ca.cross(wb, I @ wb))
         return self.mass * out
+
+
+class HoistedPlate:
+    """The plate densities of spatial segment ``i`` with the motion of the segment's base frame
+    hoisted out of the zeta integral.
+
+    The plate at zeta sits at p = t_b + R_b p_l(zeta) with orientation R_b R_l(zeta), where
+    (R_b, t_b) is the base pose of segment i (a function of q_1..q_{i-1}, eq. 14) and
+    (R_l, p_l) the local plate pose (a function of q_i, eq. 13). Then
+
+    * Jv = [dt_b/dq_< + dR_b/dq_< p_l,  R_b dp_l/dq_i],  v = t_b' + R_b' p_l + R_b p_l',
+    * d/dt(Jv) qd = t_b'' + R_b'' p_l + 2 R_b' p_l' + R_b p_l''  (primes: derivatives along qd
+      with qdd = 0), and d/dt(Jv) likewise,
+    * M = m Jv^T Jv, G = -m Jv^T g, C qd = m Jv^T d/dt(Jv) qd, C = m Jv^T d/dt(Jv) (the
+      Christoffel form for a point mass), dT/dq = m d/dt(Jv)^T v,
+
+    plus the rotational terms of the plate inertia (eq. 18) with the body angular velocity
+    omega = R_l^T omega_b + omega_l. The base quantities are computed once per evaluation
+    (recursively, :func:`symbolic.kinematics.base_step_function`);
+    :meth:`density_function` is the per-node density, whose size barely grows
+    with i. The results equal those of :class:`PlateTerms` (tested).
+    """
+
+    BASE = kin.BASE_FIELDS
+
+    def __init__(self, spec: ModelSpec, i: int):
+        self.spec, self.i = spec, i
+        seg = spec.segments[i]
+        self.mass, self.radius = seg.mass, seg.radius
+        self.k = 3 * i  # coordinates of the segments before this one
+        self.g = ca.DM(spec.gravity)
+
+    def supports(self, keys) -> bool:
+        """Keys with a hoisted density (C and dT/dq only without plate inertia)."""
+        allowed = {"M", "G", "Cqd", "V", "T"}
+        if self.radius == 0:
+            allowed |= {"C", "dTdq"}
+        return set(keys) <= allowed
+
+    def density_function(self, keys: tuple[str, ...], name: str) -> ca.Function:
+        """(q_i, qd_i, zeta, w, base...) -> w times the densities ``keys``, as blocks over the
+        first 3 (i + 1) coordinates."""
+        assert self.supports(keys), keys
+        seg = self.spec.segments[self.i]
+        k = self.k
+        ql, qdl = ca.SX.sym("qi", 3), ca.SX.sym("qdi", 3)
+        zeta, w = ca.SX.sym("zeta"), ca.SX.sym("w")
+        Rl, pl = kin.segment_pose(ql, seg.length, seg.actuator_radius,
+                                  self.spec.parameterization, zeta)
+        base = {b: ca.SX.sym(b, *shape) for b, shape in kin.base_shapes(k).items()}
+        x = _Lazy()
+        x.Jl = lambda: ca.jacobian(pl, ql)
+        x.pld = lambda: ca.jtimes(pl, ql, qdl)  # cheaper than Jl @ qdl once differentiated
+        x.pldd = lambda: ca.jtimes(x.pld, ql, qdl)
+        x.Jld = lambda: ca.jtimes(x.Jl, ql, qdl)
+
+        if k:
+            Rb = base["Rb"]
+            x.Jv = lambda: ca.horzcat(base["dtb"] + kin.mix(base["dRb"], pl), Rb @ x.Jl)
+            x.p = lambda: base["tb"] + Rb @ pl
+            x.v = lambda: base["tbd"] + base["Rbd"] @ pl + Rb @ x.pld
+            x.acc = lambda: (base["tbdd"] + base["Rbdd"] @ pl + 2 * base["Rbd"] @ x.pld
+                             + Rb @ x.pldd)
+            x.Jvd = lambda: ca.horzcat(
+                base["dtbd"] + kin.mix(base["dRbd"], pl) + kin.mix(base["dRb"], x.pld),
+                base["Rbd"] @ x.Jl + Rb @ x.Jld)
+        else:
+            x.Jv, x.p, x.v, x.acc, x.Jvd = (lambda: x.Jl), (lambda: pl), (lambda: x.pld), \
+                (lambda: x.pldd), (lambda: x.Jld)
+        m = self.mass
+        out = {
+            "M": lambda: m * (x.Jv.T @ x.Jv),
+            "G": lambda: -m * (x.Jv.T @ self.g),
+            "V": lambda: -m * ca.dot(x.p, self.g),
+            "T": lambda: 0.5 * m * ca.dot(x.v, x.v),
+            "Cqd": lambda: m * (x.Jv.T @ x.acc),
+            "C": lambda: m * (x.Jv.T @ x.Jvd),
+            "dTdq": lambda: m * (x.Jvd.T @ x.v),
+        }
+        results = {key: out[key]() for key in keys}
+        if self.radius > 0 and set(keys) & {"M", "Cqd", "T"}:
+            I = ca.DM(np.diag([1.0, 1.0, 2.0]) * self.radius**2 / 4)
+            Rld = ca.jtimes(Rl, ql, qdl)
+            wl = kin.vee(Rl.T @ Rld)
+            Jwl = ca.jacobian(wl, qdl)
+            wld = ca.jtimes(wl, ql, qdl)
+            if k:
+                Jb = ca.horzcat(Rl.T @ base["Jwb"], Jwl)
+                omega = Rl.T @ base["wb"] + wl
+                omegad = Rld.T @ base["wb"] + Rl.T @ base["wbd"] + wld
+            else:
+                Jb, omega, omegad = Jwl, wl, wld
+            if "M" in keys:
+                results["M"] = results["M"] + m * (Jb.T @ I @ Jb)
+            if "Cqd" in keys:
+                results["Cqd"] = results["Cqd"] + m * (
+                    Jb.T @ (I @ omegad + ca.cross(omega, I @ omega)))
+            if "T" in keys:
+                results["T"] = results["T"] + 0.5 * m * ca.dot(omega, I @ omega)
+        ins = [ql, qdl, zeta, w] + ([base[b] for b in self.BASE] if k else [])
+        names = ["qi", "qdi", "zeta", "w"] + (list(self.BASE) if k else [])
+        return ca.Function(name, ins, [w * results[key] for key in keys], names, list(keys),
+                           {"cse": True})
+
+
+class _Lazy:
+    """Attributes given as zero-argument callables, evaluated once on first access."""
+
+    def __setattr__(self, name, fn):
+        object.__setattr__(self, "_" + name, fn)
+
+    def __getattr__(self, name):
+        fn = object.__getattribute__(self, "_" + name)
+        value = fn()
+        object.__setattr__(self, name, value)
+        return value

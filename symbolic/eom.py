@@ -15,26 +15,36 @@ import casadi as ca
 import numpy as np
 
 from . import kinematics as kin
-from .energies import DEFAULT_ORDER, LumpedTerms, PlateTerms, Terms, gauss_legendre
+from .energies import (
+    DEFAULT_ORDER,
+    HoistedPlate,
+    LumpedTerms,
+    PlateTerms,
+    Terms,
+    gauss_legendre,
+)
 from .spec import ModelSpec
 
 
 @dataclass
 class Part:
     """One source of energy: ``terms`` in the model's symbols; ``nodes``/``weights`` are the
-    quadrature rule in zeta for a plate density (None for a closed form)."""
+    quadrature rule in zeta for a plate density (None for a closed form); ``hoisted``, for a
+    spatial segment, the faster densities of M, G and C qd."""
 
     name: str
     terms: Terms
     nodes: np.ndarray | None = None
     weights: np.ndarray | None = None
+    hoisted: HoistedPlate | None = None
 
 
 class SymbolicModel:
     """SX symbols ``q``, ``qd``, ``zeta``; energy ``parts``; ``D`` (DM) and ``A`` (SX in q)."""
 
-    def __init__(self, spec: ModelSpec, order: int = DEFAULT_ORDER):
+    def __init__(self, spec: ModelSpec, order: int = DEFAULT_ORDER, hoist: bool = True):
         self.spec = spec
+        self.hoist = hoist
         self.n, self.m = spec.n, spec.m
         self.order = order
         self.q = ca.SX.sym("q", self.n)
@@ -49,7 +59,8 @@ class SymbolicModel:
             nodes, weights = gauss_legendre(self.order)
             for i in range(len(s.segments)):
                 terms = PlateTerms(s, i, self.q, self.qd, self.zeta)
-                parts.append(Part(f"seg{i + 1}", terms, nodes, weights))
+                fast = HoistedPlate(s, i) if s.kind == "spatial-pcc" and self.hoist else None
+                parts.append(Part(f"seg{i + 1}", terms, nodes, weights, fast))
         return parts
 
     # ---------------------------------------------------------------- damping and actuation
@@ -99,6 +110,7 @@ def tip_wrench_matrix(spec: ModelSpec, q, qd, i: int):
     return ca.horzcat(-Jb[0, :].T, -Jb[1, :].T, Jvb[2, :].T)
 
 
-def derive(spec: ModelSpec, order: int = DEFAULT_ORDER) -> SymbolicModel:
-    """The symbolic model of ``spec`` (quadrature ``order`` for the zeta integrals)."""
-    return SymbolicModel(spec, order)
+def derive(spec: ModelSpec, order: int = DEFAULT_ORDER, hoist: bool = True) -> SymbolicModel:
+    """The symbolic model of ``spec`` (quadrature ``order`` for the zeta integrals; ``hoist``:
+    use :class:`~symbolic.energies.HoistedPlate` for M, G and C qd of spatial segments)."""
+    return SymbolicModel(spec, order, hoist)

@@ -16,12 +16,15 @@ generated C:
 
 from __future__ import annotations
 
+import math
 import re
 from functools import lru_cache
 from pathlib import Path
 
 import casadi as ca
 
+from . import kinematics as kin
+from .energies import DEFAULT_ORDER
 from .eom import Part, SymbolicModel, derive
 from .spec import ModelSpec, load_spec
 
@@ -98,13 +101,25 @@ class _Builder:
         self.model = model
         self.prefix = safe_name(model.spec.name)
         self.n, self.m = model.n, model.m
+        self._parts: dict[tuple, ca.Function] = {}
+        self._built: dict[str, ca.Function] = {}
+        self._solvers: dict[int, ca.Function] = {}
 
-    def part_function(self, part: Part, keys: tuple[str, ...], tag: str) -> ca.Function:
+    def part_function(self, part: Part, keys: tuple[str, ...]) -> ca.Function:
         """The part's terms ``keys`` as a Function of (q, qd); a plate density is mapped over
-        its quadrature nodes and summed."""
+        its quadrature nodes and summed. Cached, so that Functions needing the same terms share
+        one dependency (generated once in a C file)."""
+        cache_key = (part.name, keys)
+        if cache_key not in self._parts:
+            self._parts[cache_key] = self._part_function(part, keys)
+        return self._parts[cache_key]
+
+    def _part_function(self, part: Part, keys: tuple[str, ...]) -> ca.Function:
         mdl = self.model
+        name = f"{self.prefix}_{part.name}_{'_'.join(keys)}"
+        if part.hoisted is not None and part.hoisted.supports(keys):
+            return self.hoisted_function(part, keys, name)
         exprs = [getattr(part.terms, k) for k in keys]
-        name = f"{self.prefix}_{tag}_{part.name}"
         if part.nodes is None:
             return ca.Function(name, [mdl.q, mdl.qd], exprs, ["q", "qd"], list(keys), _OPTS)
         w = ca.SX.sym("w")
@@ -119,16 +134,64 @@ class _Builder:
         outs = mapped.call([q, qd, zeta, weights])
         return ca.Function(name, [q, qd], outs, ["q", "qd"], list(keys))
 
-    def terms(self, keys: tuple[str, ...], q, qd, tag: str) -> list:
+    def hoisted_function(self, part: Part, keys: tuple[str, ...], name: str) -> ca.Function:
+        """Like :meth:`part_function` for a spatial segment, with the base-frame kinematics
+        as inputs (computed once by :meth:`chain`) and only the per-node density mapped
+        (:class:`~symbolic.energies.HoistedPlate`): (q, qd, base...) -> terms."""
+        hp, n = part.hoisted, self.n
+        k = hp.k
+        q, qd = ca.MX.sym("q", n), ca.MX.sym("qd", n)
+        density = hp.density_function(keys, name + "_density")
+        N = len(part.nodes)
+        reduce_in = [j for j in range(density.n_in()) if j not in (2, 3)]
+        mapped = density.map(name + "_map", "serial", N, reduce_in, list(range(len(keys))))
+        base = [ca.MX.sym(f, *shape) for f, shape in kin.base_shapes(k).items()] if k else []
+        args = [q[k : k + 3], qd[k : k + 3], ca.DM(part.nodes).T, ca.DM(part.weights).T, *base]
+        blocks = mapped.call(args)
+        rest = n - k - 3
+        outs = []
+        for key, b in zip(keys, blocks, strict=True):
+            if rest and key in ("M", "C"):
+                b = ca.diagcat(b, ca.MX(rest, rest))
+            elif rest and key not in ("V", "T"):
+                b = ca.vertcat(b, ca.MX(rest, 1))
+            outs.append(b)
+        in_names = ["q", "qd"] + (list(kin.BASE_FIELDS) if k else [])
+        return ca.Function(name, [q, qd, *base], outs, in_names, list(keys))
+
+    def step(self, i: int) -> ca.Function:
+        key = f"step{i}"
+        if key not in self._built:
+            self._built[key] = kin.base_step_function(self.model.spec, i,
+                                                      f"{self.prefix}_base{i + 2}")
+        return self._built[key]
+
+    def chain(self, q, qd, upto: int) -> list[list]:
+        """Base-frame quantities of segments 0..upto-1 (0 = the world frame, no quantities)
+        and, if ``upto`` exceeds the segment count, of the frame after the last segment."""
+        bases: list[list] = [[]]
+        for i in range(upto - 1):
+            bases.append(self.step(i).call([q[3 * i : 3 * i + 3], qd[3 * i : 3 * i + 3],
+                                            *bases[i]]))
+        return bases
+
+    def terms(self, keys: tuple[str, ...], q, qd, tag: str = "") -> list:
         """Sum over parts of the terms ``keys`` at MX (q, qd), densified."""
         totals = [None] * len(keys)
         if qd is None:  # a function of q only
             qd = ca.MX.zeros(self.n, 1)
+        bases = None
         for part in self.model.parts:
             wanted = tuple(k for k in keys if not _structurally_zero(part, k))
             if not wanted:
                 continue
-            outs = self.part_function(part, wanted, tag).call([q, qd])
+            fn = self.part_function(part, wanted)
+            if part.hoisted is not None and part.hoisted.supports(wanted):
+                if bases is None:
+                    bases = self.chain(q, qd, len(self.model.spec.segments))
+                outs = fn.call([q, qd, *bases[part.hoisted.i]])
+            else:
+                outs = fn.call([q, qd])
             for k, val in zip(wanted, outs, strict=True):
                 i = keys.index(k)
                 totals[i] = val if totals[i] is None else totals[i] + val
@@ -139,11 +202,38 @@ class _Builder:
             out.append(ca.densify(val) if val is not None else ca.MX.zeros(*shape))
         return out
 
-    def solver(self, k: int, tag: str) -> ca.Function:
-        return spd_solve_function(self.n, k, f"{self.prefix}_{tag}_solve")
+    def solver(self, k: int, tag: str = "") -> ca.Function:
+        if k not in self._solvers:
+            self._solvers[k] = spd_solve_function(self.n, k, f"{self.prefix}_solve{k}")
+        return self._solvers[k]
 
     def A_function(self) -> ca.Function:
+        if "A_expr" not in self._built:
+            self._built["A_expr"] = self._A_function()
+        return self._built["A_expr"]
+
+    def _A_function(self) -> ca.Function:
         mdl = self.model
+        spec = mdl.spec
+        if spec.actuation == "tip-wrench" and mdl.hoist:
+            # A_i from the frame after segment i: R_tip = R_b Rz^T, so the tip's body angular
+            # Jacobian is Rz Jw_b and R_tip^T Jv has the third row of R_b^T dt_b.
+            n = self.n
+            q = ca.MX.sym("q", n)
+            nseg = len(spec.segments)
+            bases = self.chain(q, ca.MX.zeros(n, 1), nseg + 1)
+            Rz = ca.DM(kin.rot_z(math.pi / spec.actuators_per_segment))
+            fields = kin.BASE_FIELDS
+            cols = []
+            for i in range(nseg):
+                b = dict(zip(fields, bases[i + 1], strict=True))
+                Jb = Rz @ b["Jwb"]
+                Jvb = (b["Rb"].T @ b["dtb"])[2, :]
+                block = ca.horzcat(-Jb[0, :].T, -Jb[1, :].T, Jvb.T)
+                pad = n - 3 * (i + 1)
+                cols.append(ca.vertcat(block, ca.MX(pad, 3)) if pad else block)
+            A = ca.densify(ca.horzcat(*cols))
+            return ca.Function(f"{self.prefix}_A_expr", [q], [A], ["q"], ["A"])
         A = mdl.A
         # A never depends on qd (the tip-wrench Jacobian is linear in qd); substitute 0 anyway.
         A = ca.substitute(A, mdl.qd, ca.SX.zeros(self.n))
@@ -151,6 +241,11 @@ class _Builder:
                            _OPTS)
 
     def build(self, key: str) -> ca.Function:
+        if key not in self._built:
+            self._built[key] = self._build(key)
+        return self._built[key]
+
+    def _build(self, key: str) -> ca.Function:
         n, m = self.n, self.m
         q = ca.MX.sym("q", n)
         qd = ca.MX.sym("qd", n)
@@ -171,18 +266,17 @@ class _Builder:
             outs, ins = [self.A_function()(q)], [q]
         elif key in ("C", "Cqd"):
             outs, ins = self.terms((key,), q, qd, key), [q, qd]
-        elif key in ("forward", "ode"):
+        elif key == "forward":
             M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
             rhs = -Cqd - G - D @ qd
             if m:
                 rhs = rhs + self.A_function()(q) @ u
             qdd = self.solver(1, key)(M, rhs)
-            if key == "forward":
-                outs, ins = [qdd], [q, qd, u]
-            else:
-                x = ca.MX.sym("x", 2 * n)
-                f = ca.Function(f"{name}_forward", [q, qd, u], [qdd])
-                outs, ins = [ca.vertcat(x[n:], f(x[:n], x[n:], u))], [x, u]
+            outs, ins = [qdd], [q, qd, u]
+        elif key == "ode":
+            x = ca.MX.sym("x", 2 * n)
+            qdd = self.build("forward")(x[:n], x[n:], u)
+            outs, ins = [ca.vertcat(x[n:], qdd)], [x, u]
         elif key == "inverse":
             qdd = ca.MX.sym("qdd", n)
             M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
@@ -235,8 +329,6 @@ def functions(model: str | Path | ModelSpec, order: int | None = None) -> dict[s
     """All Functions of a model (a :class:`ModelSpec`, a preset name or a spec path), keyed as
     in :data:`SIGNATURES`; cached per spec value. ``order`` is the Gauss-Legendre order of the
     zeta integrals (default :data:`symbolic.energies.DEFAULT_ORDER`)."""
-    from .energies import DEFAULT_ORDER
-
     spec = load_spec(model)
     return dict(_functions(spec, DEFAULT_ORDER if order is None else int(order)))
 

@@ -169,3 +169,89 @@ def tendon_lengths(spec: ModelSpec, q):
                 length = length + segk.length + qk[2] - bend
             out.append(length)
     return ca.vertcat(*out)
+
+
+#: Names of the base-frame quantities passed between segments (all along qd, with qdd = 0):
+#: pose, Jacobians in q_<, velocities, their time derivatives and bias accelerations, and the
+#: body angular velocity, its Jacobian and bias acceleration.
+BASE_FIELDS = ("Rb", "tb", "dtb", "dRb", "tbd", "Rbd", "dtbd", "dRbd", "Rbdd", "tbdd", "wb",
+               "Jwb", "wbd")
+
+
+def base_shapes(k: int) -> dict[str, tuple[int, int]]:
+    """Shapes of the :data:`BASE_FIELDS` for a base frame that depends on k coordinates."""
+    return {"Rb": (3, 3), "tb": (3, 1), "dtb": (3, k), "dRb": (9, k), "tbd": (3, 1),
+            "Rbd": (3, 3), "dtbd": (3, k), "dRbd": (9, k), "Rbdd": (3, 3), "tbdd": (3, 1),
+            "wb": (3, 1), "Jwb": (3, k), "wbd": (3, 1)}
+
+
+def _skew_vee(X):
+    return 0.5 * (vee(X) - vee(X.T))
+
+
+def mix(D, p):
+    """sum_c D[3c:3c+3, :] p_c, i.e. the columns dR/dq_j (stored as vec(dR), 9 x k) applied
+    to the vector p."""
+    out = 0
+    for c in range(3):
+        out = out + D[3 * c : 3 * c + 3, :] * p[c]
+    return out
+
+
+def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
+    """One step of the recursion over segments (eq. 14): (q_i, qd_i, base_i) -> base_{i+1}.
+
+    base_i are the :data:`BASE_FIELDS` of segment i's base frame (in q_1..q_{i-1}); base_{i+1}
+    is the frame after segment i's full transform and the Rz(pi / a_dof) turn. Every derivative
+    is assembled by the chain rule from the base quantities and the local transform of segment
+    i, so the size of a step grows only linearly with the number of preceding coordinates.
+    Segment 0 has no base input (the base frame is the world frame).
+    """
+    seg = spec.segments[i]
+    k = 3 * i
+    ql, qdl = ca.SX.sym("qi", 3), ca.SX.sym("qdi", 3)
+    if k:
+        base = {f: ca.SX.sym(f, *s) for f, s in base_shapes(k).items()}
+    else:
+        base = {f: ca.SX(*s) for f, s in base_shapes(0).items()}
+        base["Rb"] = ca.SX.eye(3)
+    Rl, pl = segment_pose(ql, seg.length, seg.actuator_radius, spec.parameterization, 1.0)
+    Rz = rot_z(math.pi / spec.actuators_per_segment)
+    Jl = ca.jacobian(pl, ql)
+    pld = ca.jtimes(pl, ql, qdl)
+    pldd = ca.jtimes(pld, ql, qdl)
+    Jld = ca.jtimes(Jl, ql, qdl)
+    dRl = ca.jacobian(ca.vec(Rl), ql)
+    Rld = ca.jtimes(Rl, ql, qdl)
+    Rldd = ca.jtimes(Rld, ql, qdl)
+    dRld = ca.jtimes(dRl, ql, qdl)
+    Rb, Rbd, Rbdd = base["Rb"], base["Rbd"], base["Rbdd"]
+    I3 = ca.DM.eye(3)
+    RlRz, RldRz = Rl @ Rz, Rld @ Rz
+    R = Rb @ RlRz
+    Rd = Rbd @ RlRz + Rb @ RldRz
+    Rdd = (Rbdd @ Rl + 2 * Rbd @ Rld + Rb @ Rldd) @ Rz
+    # vec(X Rl Rz) = kron((Rl Rz)^T, I) vec(X);  vec(Rb Y Rz) = kron(Rz^T, Rb) vec(Y)
+    dR = ca.horzcat(ca.kron(RlRz.T, I3) @ base["dRb"], ca.kron(ca.DM(Rz).T, Rb) @ dRl)
+    dRd = ca.horzcat(ca.kron(RlRz.T, I3) @ base["dRbd"] + ca.kron(RldRz.T, I3) @ base["dRb"],
+                     ca.kron(ca.DM(Rz).T, Rbd) @ dRl + ca.kron(ca.DM(Rz).T, Rb) @ dRld)
+    out = {
+        "Rb": R,
+        "tb": base["tb"] + Rb @ pl,
+        "dtb": ca.horzcat(base["dtb"] + mix(base["dRb"], pl), Rb @ Jl),
+        "dRb": dR,
+        "tbd": base["tbd"] + Rbd @ pl + Rb @ pld,
+        "Rbd": Rd,
+        "dtbd": ca.horzcat(base["dtbd"] + mix(base["dRbd"], pl) + mix(base["dRb"], pld),
+                           Rbd @ Jl + Rb @ Jld),
+        "dRbd": dRd,
+        "Rbdd": Rdd,
+        "tbdd": base["tbdd"] + Rbdd @ pl + 2 * Rbd @ pld + Rb @ pldd,
+        "wb": _skew_vee(R.T @ Rd),
+        "Jwb": ca.horzcat(*(_skew_vee(R.T @ dR[:, j].reshape((3, 3))) for j in range(k + 3))),
+        "wbd": _skew_vee(R.T @ Rdd),
+    }
+    ins = [ql, qdl] + ([base[f] for f in BASE_FIELDS] if k else [])
+    names = ["qi", "qdi"] + (list(BASE_FIELDS) if k else [])
+    return ca.Function(name, ins, [ca.densify(out[f]) for f in BASE_FIELDS], names,
+                       [f + "_next" for f in BASE_FIELDS], {"cse": True})

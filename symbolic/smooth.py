@@ -21,7 +21,7 @@ import casadi as ca
 #: series is below 1e-21 relative there, and the direct formulas lose at most ~1e-13 relative
 #: in their second derivatives just above it.
 SWITCH = 1e-2
-_TERMS = 8
+_TERMS = 7
 
 
 def _series(s, coeffs):

@@ -110,7 +110,8 @@ class ModelSpec:
     @property
     def coordinate_names(self) -> tuple[str, ...]:
         if self.kind == "spatial-pcc":
-            names = ("dx", "dy", "dL") if self.parameterization == "delta" else ("phi", "theta", "dL")
+            delta = self.parameterization == "delta"
+            names = ("dx", "dy", "dL") if delta else ("phi", "theta", "dL")
             return tuple(f"{c}{i + 1}" for i in range(len(self.segments)) for c in names)
         if self.kind == "planar-pcc":
             return tuple(f"{c}{i + 1}" for i in range(len(self.segments)) for c in ("theta", "dL"))
