@@ -144,9 +144,12 @@ def matrix_table(
     *,
     caption: str = "",
     latex: Mapping[tuple[str, str], str] | None = None,
+    per_q: Sequence[tuple[str, str, np.ndarray]] = (),
 ) -> Table:
     """Rows per q like Tables I, II: ``matrices`` is a list of (group, label, stack), each
-    stack (N, n, c) or (N, n); q (N, n). Block i holds q_i down its first column."""
+    stack (N, n, c) or (N, n); q (N, n). Block i holds q_i down its first column.
+    ``per_q``: (group, label, values (N,)) columns with one number per q, printed in the
+    first row of each block (Table VI's alpha)."""
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2:
         raise UserError(f"q: expected shape (N, n), got {q.shape}")
@@ -160,12 +163,20 @@ def matrix_table(
     latex = latex or {}
     spans = [Span("", "q", 1, "$q$")]
     spans += [Span(g, lab, a.shape[2], latex.get((g, lab))) for g, lab, a in stacks]
+    scalars = []
+    for group, label, v in per_q:
+        v = np.asarray(v, dtype=np.float64)
+        if v.shape != (N,):
+            raise UserError(f"{group} {label}: expected shape ({N},), got {v.shape}")
+        scalars.append(v)
+        spans.append(Span(group, label, 1, latex.get((group, label))))
     rows = []
     for i in range(N):
         for r in range(n):
             row: list[Cell] = [float(q[i, r])]
             for _, _, a in stacks:
                 row += [float(v) for v in a[i, r]]
+            row += [float(v[i]) if r == 0 else None for v in scalars]
             rows.append(tuple(row))
     return Table(tuple(spans), tuple(rows), block_rows=n, caption=caption)
 
@@ -202,7 +213,11 @@ def transform_table(
             tex[("transformed", k)] = f"$P\\hat{{{body}}}$"
         cols.append(("P", result.name, result.P))
         tex[("P", result.name)] = f"$P$ ({_latex_escape(result.name)})"
-    return matrix_table(q, cols, caption=caption, latex=tex)
+    per_q = []
+    if result is not None and "alpha_per_q" in result.params:  # Table VI: alpha at each q
+        per_q.append(("alpha", "at q", result.params["alpha_per_q"]))
+        tex[("alpha", "at q")] = "$\\alpha(q)$"
+    return matrix_table(q, cols, caption=caption, latex=tex, per_q=per_q)
 
 
 def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:

@@ -135,6 +135,19 @@ def test_transform_table_holds_P_and_transformed():
     assert "$\\hat{M}(q)$" in tex and "$P\\hat{G}$" in tex and "\\cmidrule" in tex
 
 
+def test_alpha_table_has_alpha_per_q_like_table_vi(tmp_path):
+    q, true, _ = random_stacks(N=3)
+    scale = np.array([0.3, 0.32, 0.35])
+    learned = {k: v * scale.reshape((3,) + (1,) * (v.ndim - 1)) for k, v in true.items()}
+    res = fit_transform("alpha", true, learned, q)
+    t = transform_table(q, true, learned, res)
+    assert t.columns[-1] == "alpha at q"
+    np.testing.assert_allclose([r[-1] for r in t.rows[::3]], [0.3, 0.32, 0.35], rtol=1e-12)
+    assert all(r[-1] is None for i, r in enumerate(t.rows) if i % 3)
+    assert "$\\alpha(q)$" in to_latex(t)
+    assert read_csv(write_table(t, tmp_path, "vi")["csv"]) == (t.columns, t.rows)
+
+
 def test_hamiltonian_table_shows_M_inv_without_transform():
     q, true, learned = random_stacks(N=2)
     true["M_inv"] = np.linalg.inv(true.pop("M"))
