@@ -398,15 +398,22 @@ def _latex_escape(text: str) -> str:
     return "".join(out)
 
 
-def to_latex(table: Table, *, precision: int = 3, label: str | None = None) -> str:
+def to_latex(
+    table: Table, *, precision: int = 3, label: str | None = None, resize_above: int = 12
+) -> str:
     """A booktabs ``table`` environment: group headers with ``\\cmidrule``, matrix headers
-    spanning their columns, ``\\midrule`` between q-blocks."""
+    spanning their columns, ``\\midrule`` between q-blocks. Tables wider than
+    ``resize_above`` columns are scaled to the text width (``\\resizebox``, graphicx)."""
     ncol = len(table.columns)
-    lines = ["\\begin{table}[ht]", "\\centering"]
+    resize = ncol > resize_above
+    lines = ["% needs \\usepackage{booktabs}" + (", \\usepackage{graphicx}" if resize else "")]
+    lines += ["\\begin{table}[ht]", "\\centering"]
     if table.caption:
         lines.append(f"\\caption{{{_latex_escape(table.caption)}}}")
     if label:
         lines.append(f"\\label{{{label}}}")
+    if resize:
+        lines.append("\\resizebox{\\textwidth}{!}{%")
     lines += [f"\\begin{{tabular}}{{{'r' * ncol}}}", "\\toprule"]
     # group header row (merged runs of equal group)
     runs: list[list] = []
@@ -434,7 +441,10 @@ def to_latex(table: Table, *, precision: int = 3, label: str | None = None) -> s
         if table.block_rows and i and i % table.block_rows == 0:
             lines.append("\\midrule")
         lines.append(" & ".join(_latex_escape(format_number(x, precision)) for x in row) + " \\\\")
-    lines += ["\\bottomrule", "\\end{tabular}", "\\end{table}"]
+    lines += ["\\bottomrule", "\\end{tabular}"]
+    if resize:
+        lines.append("}")
+    lines.append("\\end{table}")
     return "\n".join(lines) + "\n"
 
 

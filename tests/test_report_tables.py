@@ -133,6 +133,7 @@ def test_transform_table_holds_P_and_transformed():
     np.testing.assert_allclose(arr[:, j : j + 3].reshape(3, 3, 3), res.P)
     tex = to_latex(t)
     assert "$\\hat{M}(q)$" in tex and "$P\\hat{G}$" in tex and "\\cmidrule" in tex
+    assert "\\resizebox{\\textwidth}" in tex  # 34 columns are scaled to the page
 
 
 def test_alpha_table_has_alpha_per_q_like_table_vi(tmp_path):
