@@ -365,18 +365,24 @@ def _jsonable(x: Any) -> Any:
 
 
 def _residuals(P: np.ndarray, true: MatrixStack, learned: MatrixStack, blocks):
+    """Relative residuals per q and over all q; q where P is NaN (undefined) are left out of
+    the aggregate."""
     per_q, total = {}, {}
+    defined = np.all(np.isfinite(P), axis=(1, 2))
     for k in blocks:
         X = true.block(k)
         err = np.linalg.norm(P @ learned.block(k) - X, axis=(1, 2))
         den = np.linalg.norm(X, axis=(1, 2))
         with np.errstate(divide="ignore", invalid="ignore"):
-            rel = np.where(
-                den > 0, err / np.where(den > 0, den, 1.0), np.where(err == 0, 0, np.nan)
-            )
+            rel = np.where(den > 0, err / np.where(den > 0, den, 1.0), np.nan)
+        rel = np.where((den == 0) & (err == 0), 0.0, rel)
         per_q[k] = rel
-        num, d = float(np.sqrt(np.sum(err**2))), float(np.sqrt(np.sum(den**2)))
-        total[k] = num / d if d > 0 else (0.0 if num == 0 else math.inf)
+        num = float(np.sqrt(np.sum(err[defined] ** 2)))
+        d = float(np.sqrt(np.sum(den[defined] ** 2)))
+        if not defined.any():
+            total[k] = math.nan
+        else:
+            total[k] = num / d if d > 0 else (0.0 if num == 0 else math.inf)
     return per_q, total
 
 
@@ -484,30 +490,8 @@ def fit_pointwise(true, learned, q=None, *, blocks=None, cond_max: float = 1e14)
         )
     else:
         status, msg = Status.SUCCESS, "P(q) = M(q) M^(q)^-1 at every q"
-    res = _result(
-        "pointwise",
-        np.where(bad[:, None, None], 0.0, P),
-        true,
-        learned,
-        blocks,
-        status,
-        msg,
-        {"blocks": list(blocks), "cond_learned_M": cond},
-    )
-    if np.any(bad):  # report NaN residuals where P is undefined
-        res = _with_nan_at(res, bad)
-    return res
-
-
-def _with_nan_at(res: TransformResult, bad: np.ndarray) -> TransformResult:
-    P = res.P.copy()
-    P[bad] = np.nan
-    residuals = {k: np.where(bad, np.nan, v) for k, v in res.residuals.items()}
-    scale = np.where(bad, np.nan, res.scale)
-    dist = np.where(bad, np.nan, res.distance)
-    return TransformResult(
-        **{**res.__dict__, "P": P, "residuals": residuals, "scale": scale, "distance": dist}
-    )
+    params = {"blocks": list(blocks), "cond_learned_M": cond}
+    return _result("pointwise", P, true, learned, blocks, status, msg, params)
 
 
 def fit_joint(

@@ -254,6 +254,7 @@ def test_singular_learned_mass(q, true):
     assert res.status == Status.SINGULAR and "1 of 60" in res.message
     assert np.all(np.isnan(res.P[5])) and np.isnan(res.residuals["M"][5])
     assert np.all(np.isfinite(np.delete(res.P, 5, axis=0)))
+    assert res.residual["M"] < 1e-12 and np.isnan(res.scale[5])  # the other q are exact
     rank = fit_joint(true, {"M": learned["M"]}, q)
     assert rank.status == Status.RANK_DEFICIENT and rank.params["rank"][5] == 0
 
