@@ -89,9 +89,6 @@ class PairData(NamedTuple):
     x1: np.ndarray
     xdot0: np.ndarray | None
 
-    def __len__(self) -> int:  # number of pairs, not of fields
-        return int(self.x0.shape[0])
-
     @property
     def count(self) -> int:
         return int(self.x0.shape[0])

@@ -1,0 +1,93 @@
+"""Plots of training and prediction: loss curves (like Figs. 21-22) and rollouts against the
+truth (like Figs. 8 and 23). Uses matplotlib's object API with the Agg canvas: no pyplot, no
+global backend state; every function writes one PNG atomically and returns its path."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .checkpoint import atomic_write_bytes
+
+
+def _figure(rows: int = 1, cols: int = 1, *, size=(7.0, 4.0)):
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(rows, cols, squeeze=False)
+    return fig, axes
+
+
+def _save(fig, path: str | Path) -> Path:
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    return atomic_write_bytes(path, buf.getvalue())
+
+
+def plot_loss_curves(
+    histories: Sequence[Sequence[dict]],
+    path: str | Path,
+    *,
+    labels: Sequence[str] | None = None,
+    title: str = "training",
+) -> Path:
+    """Train (solid) and test (dashed) loss against epoch, log scale, one colour per run."""
+    fig, axes = _figure()
+    ax = axes[0, 0]
+    for i, hist in enumerate(histories):
+        if not hist:
+            continue
+        e = np.array([r["epoch"] for r in hist])
+        tr = np.array([r["train_loss"] for r in hist], dtype=float)
+        te = np.array([r["test_loss"] for r in hist], dtype=float)
+        lab = labels[i] if labels else None
+        (line,) = ax.plot(e, tr, lw=1.2, label=f"train {lab}" if lab else "train")
+        ax.plot(e, te, "--", lw=1.2, color=line.get_color(), label=f"test {lab}" if lab else "test")
+    ax.set_yscale("log")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("loss")
+    ax.set_title(title)
+    ax.grid(True, which="both", alpha=0.3)
+    if len(histories) <= 8:
+        ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+def plot_rollout(
+    t: np.ndarray,
+    q_true: np.ndarray,
+    q_pred: np.ndarray,
+    path: str | Path,
+    *,
+    title: str = "rollout",
+    resets: np.ndarray | None = None,
+) -> Path:
+    """Predicted (dashed) against true (solid) coordinates over time, one panel per q_i, and the
+    absolute error underneath."""
+    n = q_true.shape[1]
+    fig, axes = _figure(n + 1, 1, size=(7.0, 1.8 * (n + 1)))
+    for i in range(n):
+        ax = axes[i, 0]
+        ax.plot(t, q_true[:, i], lw=1.4, label="true")
+        ax.plot(t, q_pred[:, i], "--", lw=1.4, label="predicted")
+        ax.set_ylabel(f"q{i + 1}")
+        ax.grid(True, alpha=0.3)
+        if resets is not None:
+            for tr in resets:
+                ax.axvline(tr, color="0.7", lw=0.6)
+    axes[0, 0].legend(fontsize=8)
+    axes[0, 0].set_title(title)
+    ax = axes[n, 0]
+    err = np.maximum(np.abs(q_pred - q_true), 1e-300)
+    for i in range(n):
+        ax.plot(t, err[:, i], lw=1.0, label=f"|e{i + 1}|")
+    ax.set_yscale("log")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("abs. error")
+    ax.grid(True, which="both", alpha=0.3)
+    return _save(fig, path)
