@@ -78,6 +78,35 @@ def sample_q(low: Sequence[float], high: Sequence[float], count: int, *, seed: i
     return np.random.default_rng(seed).uniform(lo, hi, (int(count), lo.size))
 
 
+def analysis_q(spec: Any, *, count: int = 200, seed: int = 0, paper: bool = True):
+    """The q to analyse for a model spec: the paper's table q (``[training] matrix_q`` of the
+    presets: Tables I, II, V-IX) followed by ``count`` q drawn uniformly from the box of
+    initial configurations the data were generated from (``[data] q0_low``, ``q0_high``).
+
+    Returns ``(q, k)``: q (k + count, n) with the paper's k q first.
+    """
+    n = int(spec.n)
+    training = dict(getattr(spec, "training", {}) or {})
+    data = dict(getattr(spec, "data", {}) or {})
+    table = np.asarray(training.get("matrix_q", []) if paper else [], dtype=np.float64)
+    table = table.reshape(-1, n) if table.size else np.zeros((0, n))
+    if count:
+        if "q0_low" not in data or "q0_high" not in data:
+            raise UserError(
+                f"model {getattr(spec, 'name', '?')!r}: no [data] q0_low/q0_high to sample q "
+                "from; give the q explicitly"
+            )
+        sampled = sample_q(data["q0_low"], data["q0_high"], count, seed=seed)
+        if sampled.shape[1] != n:
+            raise UserError(f"[data] q0_low: expected length n = {n}, got {sampled.shape[1]}")
+    else:
+        sampled = np.zeros((0, n))
+    q = np.concatenate([table, sampled])
+    if len(q) == 0:
+        raise UserError("analysis_q: no q (no paper table q and count = 0)")
+    return q, len(table)
+
+
 def true_matrices(true_model: Any, q: np.ndarray) -> MatrixStack:
     """M, M^-1, D, G, A of the true model at q (N, n): a ``TrueModel`` (methods batched over
     (N, n)), or matrices already evaluated (a dict or :class:`MatrixStack`)."""

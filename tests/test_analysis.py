@@ -11,7 +11,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bridge.analysis import AnalysisResult, analyze, sample_q, summary_numbers, write_report
+from bridge.analysis import (
+    AnalysisResult,
+    analysis_q,
+    analyze,
+    sample_q,
+    summary_numbers,
+    write_report,
+)
 from bridge.errors import UserError
 from bridge.tables import read_csv
 from learn.models import ModelConfig, make_model
@@ -132,3 +139,15 @@ def test_black_box_and_bad_out_dir(task1, tmp_path):
         write_report(result, tmp_path / "file")
     with pytest.raises(UserError, match="high: expected >= low"):
         sample_q([0, 1], [1, 0], 3)
+
+
+def test_analysis_q_puts_the_paper_q_first(task1):
+    q, k = analysis_q(task1.spec, count=6, seed=3)
+    assert k == 3 and q.shape == (9, 2)
+    np.testing.assert_array_equal(q[:3], TABLE_V_Q)
+    assert np.all(np.abs(q[3:]) <= 1.0)  # task1's [data] q0_low, q0_high
+    np.testing.assert_array_equal(analysis_q(task1.spec, count=6, seed=3)[0], q)
+    only, k = analysis_q(task1.spec, count=0)
+    assert k == 3 and len(only) == 3
+    with pytest.raises(UserError, match="no q"):
+        analysis_q(task1.spec, count=0, paper=False)
