@@ -29,10 +29,10 @@ from .transforms import (
     TRANSFORMS,
     MatrixStack,
     TransformResult,
-    _jsonable,
     as_stack,
     check_q,
     fit_transform,
+    to_jsonable,
 )
 
 DEFAULT_TRANSFORMS = ("pointwise", "joint", "alpha", "constant", "smooth")
@@ -52,7 +52,7 @@ class AnalysisResult:
     def to_dict(self) -> dict[str, Any]:
         """Every number, JSON-ready (NaN and inf as None)."""
         side = lambda s: {k: getattr(s, k) for k in s.present}
-        return _jsonable(
+        return to_jsonable(
             {
                 "q": self.q,
                 "learned_kind": self.learned_kind,
@@ -343,4 +343,4 @@ def summary_numbers(result: AnalysisResult) -> dict[str, Any]:
         if name == "smooth":
             d["residual_heldout"] = dict(r.params["residual_heldout"])
         out[name] = d
-    return _jsonable(out)
+    return to_jsonable(out)
