@@ -225,11 +225,8 @@ class HoistedPlate:
         self.g = ca.DM(spec.gravity)
 
     def supports(self, keys) -> bool:
-        """Keys with a hoisted density (C and dT/dq only without plate inertia)."""
-        allowed = {"M", "G", "Cqd", "V", "T"}
-        if self.radius == 0:
-            allowed |= {"C", "dTdq"}
-        return set(keys) <= allowed
+        """Keys with a hoisted density."""
+        return set(keys) <= {"M", "G", "Cqd", "V", "T", "C", "dTdq"}
 
     def density_function(self, keys: tuple[str, ...], name: str) -> ca.Function:
         """(q_i, qd_i, zeta, w, base...) -> w times the densities ``keys``, as blocks over the
@@ -272,7 +269,11 @@ class HoistedPlate:
             "dTdq": lambda: m * (x.Jvd.T @ x.v),
         }
         results = {key: out[key]() for key in keys}
-        if self.radius > 0 and set(keys) & {"M", "Cqd", "T"}:
+        if self.radius > 0:
+            # body angular velocity omega = Jb qd of the plate; with Jbd = d/dt(Jb):
+            # d omega/dq = Jbd + [omega]x Jb (from d_k Jb_j - d_j Jb_k = Jb_j x Jb_k), so
+            # dT/dq = m (Jbd + [omega]x Jb)^T I omega and the Christoffel matrix is
+            # C = m (Jb^T I Jbd + 1/2 Jb^T (I [omega]x + [omega]x I - [I omega]x) Jb).
             I = ca.DM(np.diag([1.0, 1.0, 2.0]) * self.radius**2 / 4)
             Rld = ca.jtimes(Rl, ql, qdl)
             wl = kin.vee(Rl.T @ Rld)
@@ -282,8 +283,18 @@ class HoistedPlate:
                 Jb = ca.horzcat(Rl.T @ base["Jwb"], Jwl)
                 omega = Rl.T @ base["wb"] + wl
                 omegad = Rld.T @ base["wb"] + Rl.T @ base["wbd"] + wld
+                Jbd = ca.horzcat(Rld.T @ base["Jwb"] + Rl.T @ base["Jwbd"],
+                                 ca.jtimes(Jwl, ql, qdl))
             else:
                 Jb, omega, omegad = Jwl, wl, wld
+                Jbd = ca.jtimes(Jwl, ql, qdl)
+            Iw = I @ omega
+            if "C" in keys:
+                W = ca.skew(omega)
+                sym = I @ W + W @ I - ca.skew(Iw)
+                results["C"] = results["C"] + m * (Jb.T @ I @ Jbd + 0.5 * Jb.T @ sym @ Jb)
+            if "dTdq" in keys:
+                results["dTdq"] = results["dTdq"] + m * ((Jbd + ca.skew(omega) @ Jb).T @ Iw)
             if "M" in keys:
                 results["M"] = results["M"] + m * (Jb.T @ I @ Jb)
             if "Cqd" in keys:

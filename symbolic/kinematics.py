@@ -175,14 +175,14 @@ def tendon_lengths(spec: ModelSpec, q):
 #: pose, Jacobians in q_<, velocities, their time derivatives and bias accelerations, and the
 #: body angular velocity, its Jacobian and bias acceleration.
 BASE_FIELDS = ("Rb", "tb", "dtb", "dRb", "tbd", "Rbd", "dtbd", "dRbd", "Rbdd", "tbdd", "wb",
-               "Jwb", "wbd")
+               "Jwb", "wbd", "Jwbd")
 
 
 def base_shapes(k: int) -> dict[str, tuple[int, int]]:
     """Shapes of the :data:`BASE_FIELDS` for a base frame that depends on k coordinates."""
     return {"Rb": (3, 3), "tb": (3, 1), "dtb": (3, k), "dRb": (9, k), "tbd": (3, 1),
             "Rbd": (3, 3), "dtbd": (3, k), "dRbd": (9, k), "Rbdd": (3, 3), "tbdd": (3, 1),
-            "wb": (3, 1), "Jwb": (3, k), "wbd": (3, 1)}
+            "wb": (3, 1), "Jwb": (3, k), "wbd": (3, 1), "Jwbd": (3, k)}
 
 
 def _skew_vee(X):
@@ -250,6 +250,8 @@ def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
         "wb": _skew_vee(R.T @ Rd),
         "Jwb": ca.horzcat(*(_skew_vee(R.T @ dR[:, j].reshape((3, 3))) for j in range(k + 3))),
         "wbd": _skew_vee(R.T @ Rdd),
+        "Jwbd": ca.horzcat(*(_skew_vee(Rd.T @ dR[:, j].reshape((3, 3))
+                                       + R.T @ dRd[:, j].reshape((3, 3))) for j in range(k + 3))),
     }
     ins = [ql, qdl] + ([base[f] for f in BASE_FIELDS] if k else [])
     names = ["qi", "qdi"] + (list(BASE_FIELDS) if k else [])
