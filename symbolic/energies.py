@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 
 from . import kinematics as kin
+from .smooth import Jet
 from .spec import ModelSpec
 
 #: Gauss-Legendre order for the zeta integrals; 1e-13 relative against order 40 for
@@ -236,14 +237,15 @@ class HoistedPlate:
         k = self.k
         ql, qdl = ca.SX.sym("qi", 3), ca.SX.sym("qdi", 3)
         zeta, w = ca.SX.sym("zeta"), ca.SX.sym("w")
+        jet = Jet()
         Rl, pl = kin.segment_pose(ql, seg.length, seg.actuator_radius,
-                                  self.spec.parameterization, zeta)
+                                  self.spec.parameterization, zeta, jet)
         base = {b: ca.SX.sym(b, *shape) for b, shape in kin.base_shapes(k).items()}
         x = _Lazy()
-        x.Jl = lambda: ca.jacobian(pl, ql)
-        x.pld = lambda: ca.jtimes(pl, ql, qdl)  # cheaper than Jl @ qdl once differentiated
-        x.pldd = lambda: ca.jtimes(x.pld, ql, qdl)
-        x.Jld = lambda: ca.jtimes(x.Jl, ql, qdl)
+        x.Jl = lambda: jet.jacobian(pl, ql)
+        x.pld = lambda: jet.jtimes(pl, ql, qdl)  # cheaper than Jl @ qdl once differentiated
+        x.pldd = lambda: jet.jtimes(x.pld, ql, qdl)
+        x.Jld = lambda: jet.jtimes(x.Jl, ql, qdl)
 
         if k:
             Rb = base["Rb"]
@@ -275,19 +277,19 @@ class HoistedPlate:
             # dT/dq = m (Jbd + [omega]x Jb)^T I omega and the Christoffel matrix is
             # C = m (Jb^T I Jbd + 1/2 Jb^T (I [omega]x + [omega]x I - [I omega]x) Jb).
             I = ca.DM(np.diag([1.0, 1.0, 2.0]) * self.radius**2 / 4)
-            Rld = ca.jtimes(Rl, ql, qdl)
+            Rld = jet.jtimes(Rl, ql, qdl)
             wl = kin.vee(Rl.T @ Rld)
-            Jwl = ca.jacobian(wl, qdl)
-            wld = ca.jtimes(wl, ql, qdl)
+            Jwl = ca.jacobian(wl, qdl)  # linear in qdl: no chain rule through s
+            wld = jet.jtimes(wl, ql, qdl)
             if k:
                 Jb = ca.horzcat(Rl.T @ base["Jwb"], Jwl)
                 omega = Rl.T @ base["wb"] + wl
                 omegad = Rld.T @ base["wb"] + Rl.T @ base["wbd"] + wld
                 Jbd = ca.horzcat(Rld.T @ base["Jwb"] + Rl.T @ base["Jwbd"],
-                                 ca.jtimes(Jwl, ql, qdl))
+                                 jet.jtimes(Jwl, ql, qdl))
             else:
                 Jb, omega, omegad = Jwl, wl, wld
-                Jbd = ca.jtimes(Jwl, ql, qdl)
+                Jbd = jet.jtimes(Jwl, ql, qdl)
             Iw = I @ omega
             if "C" in keys:
                 W = ca.skew(omega)
@@ -304,8 +306,8 @@ class HoistedPlate:
                 results["T"] = results["T"] + 0.5 * m * ca.dot(omega, I @ omega)
         ins = [ql, qdl, zeta, w] + ([base[b] for b in self.BASE] if k else [])
         names = ["qi", "qdi", "zeta", "w"] + (list(self.BASE) if k else [])
-        return ca.Function(name, ins, [w * results[key] for key in keys], names, list(keys),
-                           {"cse": True})
+        outs = jet.finalize([w * results[key] for key in keys])
+        return ca.Function(name, ins, outs, names, list(keys), {"cse": True})
 
 
 class _Lazy:

@@ -21,7 +21,7 @@ import math
 
 import casadi as ca
 
-from .smooth import cosc, sinc
+from .smooth import Jet, cosc, sinc
 from .spec import ModelSpec
 
 
@@ -31,17 +31,25 @@ def rot_z(angle: float) -> ca.DM:
     return ca.DM([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def segment_pose(qi, length: float, d: float, parameterization: str, zeta=1.0):
+def segment_pose(qi, length: float, d: float, parameterization: str, zeta=1.0, jet=None):
     """Rotation R (3x3) and position p (3x1) of the plate at ``zeta`` in the segment frame (eq. 13).
 
     ``qi`` is the SX 3-vector of the segment's coordinates, ``length`` its rest length L0 and
-    ``d`` its actuator radius (used by ``delta``).
+    ``d`` its actuator radius (used by ``delta``). With a :class:`~symbolic.smooth.Jet`, cosc
+    and sinc enter as the jet's symbols (differentiate with the jet, then finalize).
     """
     L = length + qi[2]
+
+    def smooth_pair(s):
+        if jet is None:
+            return cosc(s), sinc(s)
+        jet.bind(s)
+        return jet.c1, jet.c2
+
     if parameterization == "delta":
         dx, dy = qi[0] / d, qi[1] / d  # theta (cos phi, sin phi)
         s = zeta**2 * (dx**2 + dy**2)  # (zeta theta)^2
-        c1, c2 = cosc(s), sinc(s)
+        c1, c2 = smooth_pair(s)
         z2c1 = zeta**2 * c1
         R = ca.vertcat(
             ca.horzcat(1 - z2c1 * dx * dx, -z2c1 * dx * dy, zeta * c2 * dx),
@@ -61,9 +69,9 @@ def segment_pose(qi, length: float, d: float, parameterization: str, zeta=1.0):
             ca.horzcat(-su * cp, -su * sp, cu),
         )
         # lambda (1 - cos u) = L zeta^2 theta cosc(u^2), lambda sin u = L zeta sinc(u^2)
-        s = u * u
-        a = L * zeta * zeta * theta * cosc(s)
-        p = ca.vertcat(a * cp, a * sp, L * zeta * sinc(s))
+        c1, c2 = smooth_pair(u * u)
+        a = L * zeta * zeta * theta * c1
+        p = ca.vertcat(a * cp, a * sp, L * zeta * c2)
         return R, p
     raise AssertionError(parameterization)
 
@@ -215,16 +223,17 @@ def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
     else:
         base = {f: ca.SX(*s) for f, s in base_shapes(0).items()}
         base["Rb"] = ca.SX.eye(3)
-    Rl, pl = segment_pose(ql, seg.length, seg.actuator_radius, spec.parameterization, 1.0)
+    jet = Jet()
+    Rl, pl = segment_pose(ql, seg.length, seg.actuator_radius, spec.parameterization, 1.0, jet)
     Rz = rot_z(math.pi / spec.actuators_per_segment)
-    Jl = ca.jacobian(pl, ql)
-    pld = ca.jtimes(pl, ql, qdl)
-    pldd = ca.jtimes(pld, ql, qdl)
-    Jld = ca.jtimes(Jl, ql, qdl)
-    dRl = ca.jacobian(ca.vec(Rl), ql)
-    Rld = ca.jtimes(Rl, ql, qdl)
-    Rldd = ca.jtimes(Rld, ql, qdl)
-    dRld = ca.jtimes(dRl, ql, qdl)
+    Jl = jet.jacobian(pl, ql)
+    pld = jet.jtimes(pl, ql, qdl)
+    pldd = jet.jtimes(pld, ql, qdl)
+    Jld = jet.jtimes(Jl, ql, qdl)
+    dRl = jet.jacobian(ca.vec(Rl), ql)
+    Rld = jet.jtimes(Rl, ql, qdl)
+    Rldd = jet.jtimes(Rld, ql, qdl)
+    dRld = jet.jtimes(dRl, ql, qdl)
     Rb, Rbd, Rbdd = base["Rb"], base["Rbd"], base["Rbdd"]
     I3 = ca.DM.eye(3)
     RlRz, RldRz = Rl @ Rz, Rld @ Rz
@@ -255,5 +264,6 @@ def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
     }
     ins = [ql, qdl] + ([base[f] for f in BASE_FIELDS] if k else [])
     names = ["qi", "qdi"] + (list(BASE_FIELDS) if k else [])
-    return ca.Function(name, ins, [ca.densify(out[f]) for f in BASE_FIELDS], names,
+    outs = jet.finalize([ca.densify(out[f]) for f in BASE_FIELDS])
+    return ca.Function(name, ins, outs, names,
                        [f + "_next" for f in BASE_FIELDS], {"cse": True})
