@@ -1,0 +1,160 @@
+"""``softpinn analyze`` and ``softpinn reproduce``: flags mapped onto :mod:`bridge.analysis` and
+:mod:`bridge.pipelines`."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+from .errors import UserError
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "analyze",
+        help="learned against true M, D, G, A of a trained run, with transforms P(q)",
+        description=(
+            "Evaluate the true (CasADi) and learned (Equinox) matrices at the given q (default: "
+            "the paper's table q of a preset and q sampled in its data range), fit the "
+            "transforms P(q) relating them, and write report.md, CSV/LaTeX tables and plots."
+        ),
+    )
+    p.add_argument("run", metavar="RUN", help="run directory written by `softpinn train`")
+    p.add_argument("model", metavar="MODEL", help="preset name or spec file of the true model")
+    p.add_argument("--q", nargs="+", type=float, metavar="Q",
+                   help="configurations, n numbers each (several q: concatenate them)")
+    p.add_argument("--points", type=int, default=200,
+                   help="q sampled in the data range when --q is not given (default 200)")
+    p.add_argument("--transform", nargs="+", default=None, metavar="NAME",
+                   help="pointwise, joint, alpha, constant, smooth, direct (default: all but "
+                        "direct; direct is added for Hamiltonian models)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--json", action="store_true", help="print every number as one JSON object")
+    p.set_defaults(func=cmd_analyze)
+
+    r = subparsers.add_parser(
+        "reproduce",
+        help="a paper task end to end: simulate, train, predict, analyze, report",
+        description=(
+            "Run one of the paper's five tasks: simulate its data, train the physics model(s) "
+            "and the black-box baseline, predict, analyze the learned matrices and write "
+            "report.md. Finished stages are skipped when run again with the same settings."
+        ),
+    )
+    r.add_argument("task", metavar="TASK", help="task1 ... task5")
+    r.add_argument("--quick", action="store_true", help="small settings (a minute or two)")
+    r.add_argument("--out", required=True, help="output directory")
+    r.add_argument("--seeds", type=int, default=1, help="train K seeds, report mean ± std")
+    r.add_argument("--epochs", type=int, default=None, help="override every model's epochs")
+    r.add_argument("--lbfgs-steps", type=int, default=None,
+                   help="override every model's L-BFGS iterations after AdamW")
+    r.add_argument("--float32", action="store_true", help="train in float32")
+    r.add_argument("--quiet", action="store_true", help="no progress output")
+    r.set_defaults(func=cmd_reproduce)
+
+
+def _enable_x64():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def cmd_analyze(args) -> int:
+    _enable_x64()
+    import numpy as np
+
+    from learn.train import load_run
+    from symbolic.model import TrueModel
+    from symbolic.spec import load_spec
+
+    from .analysis import analysis_q, analyze, write_report
+    from .transforms import TRANSFORMS
+
+    spec = load_spec(args.model)
+    run = load_run(args.run)
+    cfg = run.model_config
+    if (cfg.n, cfg.m) != (spec.n, spec.m):
+        raise UserError(
+            f"run {args.run} holds a model with n={cfg.n}, m={cfg.m}; {spec.name} has "
+            f"n={spec.n}, m={spec.m}"
+        )
+    if cfg.kind == "blackbox":
+        raise UserError(f"run {args.run} holds a black-box model: it has no matrices to analyze")
+    transforms = args.transform or ("pointwise", "joint", "alpha", "constant", "smooth")
+    for name in transforms:
+        if name not in TRANSFORMS:
+            raise UserError(f"--transform: unknown {name!r}; expected one of {list(TRANSFORMS)}")
+    if args.q is not None:
+        if len(args.q) % spec.n:
+            raise UserError(
+                f"--q: expected a multiple of n = {spec.n} numbers for {spec.name}, "
+                f"got {len(args.q)}"
+            )
+        q = np.asarray(args.q, dtype=float).reshape(-1, spec.n)
+        k = len(q)
+        if "smooth" in transforms and len(q) < 8:
+            transforms = tuple(t for t in transforms if t != "smooth")
+    else:
+        q, k = analysis_q(spec, count=args.points)
+    result = analyze(TrueModel(spec), run.model, q, transforms=transforms)
+    paths = write_report(result, args.out, max_table_q=max(k, 3))
+    if args.json:
+        print(json.dumps(result.to_dict()))
+    else:
+        print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from .pipelines import ReproduceConfig, reproduce
+
+    config = ReproduceConfig(
+        task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,
+        lbfgs_steps=args.lbfgs_steps, float32=args.float32,
+    )
+    bar = None if args.quiet else _EpochBar()
+
+    def log(line: str) -> None:
+        if bar is not None:
+            bar.close()
+            print(line, file=sys.stderr, flush=True)
+    try:
+        result = reproduce(config, args.out, log=log, progress=bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    print(f"wrote {result.report} ({result.seconds:.0f} s)")
+    return 0
+
+
+class _EpochBar:
+    """One tqdm bar per trained model, driven by the training callback."""
+
+    def __init__(self):
+        self.bar = None
+        self.key = None
+
+    def __call__(self, info: dict):
+        from tqdm.auto import tqdm
+
+        key = (info["label"], info["epochs"])
+        if self.bar is None or key != self.key:
+            self.close()
+            self.bar = tqdm(total=info["epochs"], file=sys.stderr, unit="epoch",
+                            dynamic_ncols=True, leave=False)
+            self.key = key
+            self.last = 0
+        if info["phase"] == "adamw":
+            self.bar.update(max(0, info["epoch"] - self.last))
+            self.last = info["epoch"]
+        post = {"train": f"{min(info['train_loss']):.3e}"}
+        if info["test_loss"] is not None:
+            post["test"] = f"{min(info['test_loss']):.3e}"
+        if info["phase"] != "adamw":
+            post["phase"] = info["phase"]
+        self.bar.set_postfix(post, refresh=False)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None

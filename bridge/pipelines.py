@@ -1,0 +1,512 @@
+"""The paper's five tasks end to end: ``softpinn reproduce TASK``.
+
+One call runs the whole study of a task (Section III-B, Section IV, Appendix B):
+
+1. **data**: simulate the preset's trajectories with the paper's settings (``[data]``), split
+   them as the paper does (physics-model training, black-box training, test);
+2. **train**: the physics model(s) of the task (Task 1, 2: Lagrangian; Task 3: Hamiltonian;
+   Task 4: Lagrangian and Hamiltonian; Task 5: Lagrangian on the fixed-step and on the 50, 100,
+   1000 Hz data) and the black-box baseline, which gets more data as in the paper;
+3. **predict**: one-step test error and rollouts over the paper's horizon (2.7 s, 5 s, 10 s),
+   long rollouts (Fig. 9) and rollouts with another step size (Figs. 24-25);
+4. **analyze**: learned against true M, M^-1, D, G, A at the paper's table q and at q sampled
+   in the data's range, with the transforms of :mod:`bridge.transforms`;
+5. **report**: ``report.md`` with Table III's row for the task beside ours, the matrix
+   summaries and the figures.
+
+Every stage writes its results under ``OUT/<stage>/`` and a ``done.json`` holding the settings
+that made them; a second call with the same settings skips finished stages, so an interrupted
+run loses at most the stage it was in (training itself resumes from its last checkpoint).
+
+``quick=True`` runs the same pipeline on small settings (few short trajectories, small nets,
+few epochs) in a minute or two; tests and notebooks use it. Full runs use the paper's network
+sizes and data, with our own, shorter training budgets (:data:`FULL_BUDGETS`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import platform
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .errors import UserError
+
+TASKS = ("task1", "task2", "task3", "task4", "task5")
+PHYSICS_KINDS = ("lagrangian", "hamiltonian")
+
+#: Our training budgets for full runs (the paper's epochs are in the presets' [training]
+#: tables and in Table III; we converge faster rather than train longer): epochs of AdamW,
+#: then L-BFGS iterations on the full training set.
+FULL_BUDGETS: dict[str, dict[str, dict[str, int]]] = {
+    "task1": {"lagrangian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
+    "task2": {"lagrangian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
+    "task3": {"hamiltonian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
+    "task4": {
+        "lagrangian": {"epochs": 600, "lbfgs": 100},
+        "hamiltonian": {"epochs": 600, "lbfgs": 100},
+        "blackbox": {"epochs": 600},
+    },
+    "task5": {"lagrangian": {"epochs": 150, "lbfgs": 50}, "blackbox": {"epochs": 150}},
+}
+
+#: Step sizes other than the data's for the rollouts of Figs. 24-25 (task1: 0.1 s, task2:
+#: 0.15 s, task3: 0.1 s as in Figs. 25, 31, 37), and a multiple of the data step elsewhere.
+OTHER_DT = {"task1": 0.1, "task2": 0.15, "task3": 0.1}
+
+
+@dataclass(frozen=True)
+class ReproduceConfig:
+    """Settings of one ``reproduce`` call (everything else comes from the task's preset)."""
+
+    task: str
+    quick: bool = False
+    seeds: int = 1
+    epochs: int | None = None  # overrides every model's epochs
+    lbfgs_steps: int | None = None  # overrides every model's L-BFGS iterations
+    float32: bool = False
+    analysis_points: int | None = None  # sampled q for the analysis (default 200, quick 40)
+
+    def __post_init__(self):
+        if self.task not in TASKS:
+            raise UserError(f"task: expected one of {', '.join(TASKS)}, got {self.task!r}")
+        if not isinstance(self.seeds, int) or self.seeds < 1:
+            raise UserError(f"--seeds must be an integer >= 1, got {self.seeds!r}")
+        if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
+            raise UserError(f"--epochs must be an integer >= 1, got {self.epochs!r}")
+        if self.lbfgs_steps is not None and self.lbfgs_steps < 0:
+            raise UserError(f"--lbfgs-steps must be >= 0, got {self.lbfgs_steps!r}")
+
+
+# ------------------------------------------------------------------------------------ plan
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One data set and the models trained on it (Task 5 has four)."""
+
+    name: str  # "main", or for task5 "fixed_0.0002s", "50Hz", "100Hz", "1000Hz"
+    source: str  # "cvodes" or "rk4" (the simulated file it comes from)
+    rate: float | None  # resample the source to this rate (None: as simulated)
+    models: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Plan:
+    """What a task run does: data settings, variants, and per-model training settings."""
+
+    task: str
+    quick: bool
+    data: Mapping[str, Any]
+    fixed_step: Mapping[str, Any] | None
+    variants: tuple[Variant, ...]
+    models: Mapping[str, Mapping[str, Any]]
+    batch_size: int
+    horizon: float
+    long_horizon: float
+    other_dt: float | None
+    analysis_points: int
+    physics_samples: int | None
+    seeds: int
+    float32: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self), default=list))
+
+
+def _size(training: Mapping[str, Any], kind: str, key: str, default):
+    value = dict(training.get(kind, {})).get(key, default)
+    return tuple(int(v) for v in value)
+
+
+def make_plan(spec, config: ReproduceConfig) -> Plan:
+    """The plan of a task run from its preset and the call's settings."""
+    task, quick = config.task, config.quick
+    training = dict(spec.training)
+    data = dict(spec.data)
+    physics = tuple(training.get("physics", ["lagrangian"]))
+    horizon = float(training.get("prediction_horizon", 5.0))
+    budgets = FULL_BUDGETS[task]
+    fixed_step = None
+    if quick:
+        data.update(train_trajectories=3, test_trajectories=2, blackbox_train_trajectories=4)
+        data["duration"] = 4.0 if task != "task5" else 2.0
+        data.pop("trajectories", None)
+        horizon = min(horizon, data["duration"] * 0.6)
+    if task == "task5":
+        rates = [float(r) for r in data.get("rates", [50.0, 100.0, 1000.0])]
+        if quick:
+            rates = [50.0, 100.0]
+            data["rates"] = rates
+        fixed_step = {
+            "dt": float(data.get("fixed_step_dt", 2e-4)),
+            "rate": 1000.0 if quick else 1.0 / float(data.get("fixed_step_dt", 2e-4)),
+            "duration": 1.0 if quick else 10.0,
+            "trajectories": 3 if quick else int(data.get("fixed_step_trajectories", 5)),
+        }
+        if quick:
+            data["fixed_step_train_trajectories"] = 2
+        variants = [Variant("fixed_0.0002s", "rk4", None, ("lagrangian", "blackbox"))]
+        for r in rates:
+            kinds = ("lagrangian", "blackbox") if r == 100.0 else ("lagrangian",)
+            variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds))
+        variants = tuple(variants)
+    else:
+        variants = (Variant("main", "cvodes", None, physics + ("blackbox",)),)
+    models: dict[str, dict[str, Any]] = {}
+    for kind in physics + ("blackbox",):
+        budget = budgets.get(kind, {"epochs": 1000})
+        if quick:
+            m = dict(
+                mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2), hidden=(32, 2),
+                epochs=60 if task != "task5" else 25, lbfgs=0, lr=3e-3,
+            )
+        else:
+            m = dict(
+                mass=_size(training, kind if kind != "blackbox" else physics[0], "mass", (64, 3)),
+                potential=_size(training, kind if kind != "blackbox" else physics[0],
+                                "potential", (64, 3)),
+                damping=_size(training, kind if kind != "blackbox" else physics[0], "damping",
+                              (16, 2)),
+                input=_size(training, kind if kind != "blackbox" else physics[0], "input",
+                            (16, 2)),
+                hidden=_size(training, "blackbox", "hidden", (128, 3)),
+                epochs=int(budget["epochs"]), lbfgs=int(budget.get("lbfgs", 0)), lr=3e-3,
+            )
+        m["paper_epochs"] = int(dict(training.get(kind, {})).get("epochs", 0)) or None
+        if config.epochs is not None:
+            m["epochs"] = config.epochs
+        if config.lbfgs_steps is not None:
+            m["lbfgs"] = config.lbfgs_steps
+        models[kind] = m
+    other_dt = OTHER_DT.get(task)
+    if other_dt is None:
+        rate = float(data.get("rate", max(data.get("rates", [100.0]))))
+        other_dt = 2.0 / rate
+    return Plan(
+        task=task,
+        quick=quick,
+        data=data,
+        fixed_step=fixed_step,
+        variants=variants,
+        models=models,
+        batch_size=int(training.get("batch_size", 1000)) if not quick else 256,
+        horizon=horizon,
+        long_horizon=min(3 * horizon, float(data["duration"])),
+        other_dt=other_dt,
+        analysis_points=config.analysis_points or (40 if quick else 200),
+        physics_samples=None if quick else data.get("physics_samples"),
+        seeds=config.seeds,
+        float32=config.float32,
+    )
+
+
+# ---------------------------------------------------------------------------------- stages
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=2, default=_jsonable))
+    tmp.replace(path)
+
+
+def _jsonable(x):
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, Path):
+        return str(x)
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    raise TypeError(f"not JSON serialisable: {type(x)}")
+
+
+class _Stages:
+    """Runs named stages once: a stage whose ``done.json`` holds the same settings is skipped."""
+
+    def __init__(self, out: Path, log: Callable[[str], None]):
+        self.out = out
+        self.log = log
+
+    def run(self, name: str, settings: Mapping[str, Any], fn: Callable[[Path], Any]) -> Any:
+        folder = self.out / name
+        done = folder / "done.json"
+        settings = json.loads(json.dumps(settings, default=_jsonable))
+        if done.is_file():
+            stored = json.loads(done.read_text())
+            if stored.get("settings") == settings:
+                self.log(f"[{name}] done before, skipped")
+                return stored["result"]
+        folder.mkdir(parents=True, exist_ok=True)
+        self.log(f"[{name}] ...")
+        t0 = time.perf_counter()
+        result = fn(folder)
+        seconds = time.perf_counter() - t0
+        result = json.loads(json.dumps(result, default=_jsonable))
+        _write_json(done, {"settings": settings, "result": result, "seconds": seconds})
+        self.log(f"[{name}] {seconds:.1f} s")
+        return result
+
+
+@dataclass
+class ReproduceResult:
+    """What :func:`reproduce` returns: paths and every figure it measured."""
+
+    out_dir: Path
+    report: Path
+    plan: Plan
+    results: dict = field(repr=False)
+    seconds: float = 0.0
+
+
+def reproduce(
+    config: ReproduceConfig | str,
+    out_dir: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> ReproduceResult:
+    """Run a paper task end to end into ``out_dir`` (see the module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from symbolic.spec import load_spec
+
+    if isinstance(config, str):
+        config = ReproduceConfig(task=config)
+    log = log or (lambda s: None)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    spec = load_spec(config.task)
+    plan = make_plan(spec, config)
+    _write_json(out / "plan.json", plan.to_dict())
+    stages = _Stages(out, log)
+
+    data = stages.run("data", {"plan_data": plan.data, "fixed": plan.fixed_step},
+                      lambda d: _stage_data(spec, plan, d))
+    results: dict[str, Any] = {"data": data, "variants": {}}
+    for variant in plan.variants:
+        vres: dict[str, Any] = {"models": {}}
+        files = data["variants"][variant.name]
+        for kind in variant.models:
+            key = f"{variant.name}/{kind}"
+            mplan = plan.models[kind]
+            settings = {"model": mplan, "files": files, "batch": plan.batch_size,
+                        "seeds": plan.seeds, "float32": plan.float32,
+                        "samples": plan.physics_samples if kind != "blackbox" else None}
+            tr = stages.run(f"train/{variant.name}/{kind}", settings,
+                            lambda d, k=kind, f=files: _stage_train(spec, plan, k, f, d,
+                                                                    progress))
+            pr = stages.run(f"predict/{variant.name}/{kind}",
+                            {"train": settings, "horizon": plan.horizon,
+                             "long": plan.long_horizon, "dt": plan.other_dt},
+                            lambda d, k=kind, f=files, t=tr: _stage_predict(plan, k, f, t, d))
+            entry = {"train": tr, "predict": pr}
+            if kind != "blackbox":
+                entry["analyze"] = stages.run(
+                    f"analyze/{variant.name}/{kind}",
+                    {"train": settings, "points": plan.analysis_points},
+                    lambda d, t=tr: _stage_analyze(spec, plan, t, d),
+                )
+            vres["models"][kind] = entry
+            log(f"{key}: test {pr['test_error']['mean']:.3e}, rollout "
+                f"{pr['prediction_error']['mean']:.3e} over {plan.horizon:g} s")
+        results["variants"][variant.name] = vres
+    seconds = time.perf_counter() - t_start
+    from .report import write_task_report
+
+    report = write_task_report(spec, plan, results, out, seconds=seconds)
+    _write_json(out / "results.json", {
+        "task": plan.task, "quick": plan.quick, "seconds": seconds,
+        "machine": machine_description(), "results": results,
+    })
+    log(f"report: {report}")
+    return ReproduceResult(out, report, plan, results, seconds)
+
+
+def machine_description() -> str:
+    import os
+
+    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}, " \
+           f"Python {platform.python_version()}"
+
+
+# ---------------------------------------------------------------------------------- data
+
+
+def _stage_data(spec, plan: Plan, folder: Path) -> dict:
+    from symbolic.datasets import make_dataset, resample, select_trajectories, write_dataset
+
+    out: dict[str, Any] = {"variants": {}}
+    sources = {v.source for v in plan.variants}
+    made = {}
+    if "cvodes" in sources:
+        made["cvodes"] = make_dataset(spec, data=plan.data, integrator="cvodes")
+    if "rk4" in sources:
+        fs = plan.fixed_step
+        made["rk4"] = make_dataset(spec, data=plan.data, integrator="rk4", dt=fs["dt"],
+                                   rate=fs["rate"], duration=fs["duration"],
+                                   trajectories=fs["trajectories"])
+    for variant in plan.variants:
+        arrays = made[variant.source]
+        if variant.rate is not None and variant.rate != arrays.meta["rate"]:
+            arrays = resample(arrays, variant.rate)
+        splits = arrays.meta["splits"]
+        files = {}
+        for role, train_ids in (("physics", splits["train"]),
+                                ("blackbox", splits["blackbox_train"])):
+            sel = select_trajectories(arrays, list(train_ids) + list(splits["test"]))
+            path = folder / f"{variant.name}-{role}.npz"
+            write_dataset(path, sel, force=True)
+            files[role] = {"path": str(path), "train": list(map(int, train_ids)),
+                           "test": list(map(int, splits["test"])),
+                           "samples": int(sum(int((sel.traj == i).sum()) for i in train_ids))}
+        files["rate"] = float(arrays.meta["rate"])
+        files["timestep"] = 1.0 / float(arrays.meta["rate"])
+        out["variants"][variant.name] = files
+    return out
+
+
+# -------------------------------------------------------------------------------- training
+
+
+def _model_config(spec, plan: Plan, kind: str):
+    from learn.models import ModelConfig
+
+    m = plan.models[kind]
+    return ModelConfig(
+        kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]), potential=tuple(m["potential"]),
+        damping=tuple(m["damping"]), input=tuple(m["input"]), hidden=tuple(m["hidden"]),
+        dtype="float32" if plan.float32 else "float64",
+    )
+
+
+def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progress) -> dict:
+    from learn.train import TrainConfig, train
+
+    role = "blackbox" if kind == "blackbox" else "physics"
+    f = files[role]
+    m = plan.models[kind]
+    tc = TrainConfig(
+        model=_model_config(spec, plan, kind),
+        epochs=int(m["epochs"]),
+        batch_size=plan.batch_size,
+        lr=float(m["lr"]),
+        seed=0,
+        seeds=plan.seeds,
+        test_trajectories=tuple(f["test"]),
+        samples=plan.physics_samples if role == "physics" else None,
+        lbfgs_steps=int(m["lbfgs"]),
+        eval_every=max(1, int(m["epochs"]) // 50),
+        checkpoint_every=max(1, int(m["epochs"]) // 10),
+    )
+    run_dir = folder / "run"
+    resume = (run_dir / "checkpoint.eqx").is_file() or any(run_dir.glob("seed-*/checkpoint.eqx"))
+    try:
+        res = train(f["path"], None if resume else tc, run_dir, progress=progress,
+                    force=not resume, resume=resume)
+    except UserError:
+        if not resume:
+            raise
+        res = train(f["path"], tc, run_dir, progress=progress, force=True)
+    return {"run": str(run_dir), "metrics": res.metrics, "config": tc.to_dict(),
+            "samples": res.metrics.get("train_pairs", f["samples"]), "epochs": tc.epochs}
+
+
+# ------------------------------------------------------------------------------- prediction
+
+
+def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Path) -> dict:
+    from learn.data import load_dataset
+    from learn.predict import evaluate
+    from learn.train import load_ensemble
+
+    f = files["blackbox" if kind == "blackbox" else "physics"]
+    members = load_ensemble(trained["run"])
+    data = load_dataset(f["path"])
+    test = f["test"]
+    per_seed = []
+    for run in members:
+        tc = run.train_config
+        kw = dict(loss_weight=tc.loss_weight, substeps=tc.substeps, input_hold=tc.input_hold)
+        main = evaluate(run.model, data, test, horizon=plan.horizon, **kw)
+        long = evaluate(run.model, data, test, horizon=plan.long_horizon, **kw)
+        other = evaluate(run.model, data, test, horizon=plan.horizon, dt=plan.other_dt, **kw)
+        train_err = evaluate(run.model, data, f["train"][:4], horizon=plan.horizon, **kw)
+        per_seed.append((run.seed, main, long, other, train_err))
+    seed, main, long, other, _ = per_seed[0]
+    np.savez(folder / "rollouts.npz", **_rollout_arrays("main", main),
+             **_rollout_arrays("long", long), **_rollout_arrays("other", other))
+
+    def agg(values):
+        v = np.asarray(values, float)
+        return {"mean": float(np.mean(v)), "std": float(np.std(v)) if len(v) > 1 else None}
+
+    def mean_std_over(results, attr):
+        # per-seed figure; across seeds mean ± std of the per-seed means
+        return [getattr(r, attr) for r in results]
+
+    mains = [p[1] for p in per_seed]
+    trains = [p[4] for p in per_seed]
+    out = {
+        "test_error": _pooled([r.one_step_error for r in mains]),
+        "train_error": _pooled([r.one_step_error for r in trains]),
+        "prediction_error": {
+            "mean": float(np.mean([r.rollout_error_mean for r in mains])),
+            "std": float(np.mean([r.rollout_error_std for r in mains])),
+            "horizon_s": plan.horizon,
+            "seeds": agg(mean_std_over(mains, "rollout_error_mean")),
+        },
+        "long_prediction_error": {"mean": long.rollout_error_mean,
+                                  "std": long.rollout_error_std,
+                                  "horizon_s": plan.long_horizon},
+        "other_dt_prediction_error": {"mean": other.rollout_error_mean,
+                                      "std": other.rollout_error_std, "dt": plan.other_dt,
+                                      "horizon_s": plan.horizon},
+        "rollout_errors": main.rollout_errors,
+        "trajectories": main.trajectories,
+        "seeds": [p[0] for p in per_seed],
+    }
+    return out
+
+
+def _pooled(entries: list[dict]) -> dict:
+    means = [e["mean"] for e in entries]
+    stds = [e["std"] for e in entries]
+    return {"mean": float(np.mean(means)), "std": float(np.mean(stds)),
+            "pairs": int(entries[0]["pairs"])}
+
+
+def _rollout_arrays(prefix: str, res) -> dict[str, np.ndarray]:
+    r = res.rollouts[0]
+    return {f"{prefix}_t": r["t"], f"{prefix}_q_true": r["q_true"],
+            f"{prefix}_q_pred": r["q_pred"], f"{prefix}_id": np.array(r["id"])}
+
+
+# --------------------------------------------------------------------------------- analysis
+
+
+def _stage_analyze(spec, plan: Plan, trained: dict, folder: Path) -> dict:
+    from learn.train import load_run
+    from symbolic.model import TrueModel
+
+    from .analysis import analysis_q, analyze, summary_numbers, write_report
+
+    run = load_run(trained["run"])
+    q, k = analysis_q(spec, count=plan.analysis_points, seed=0)
+    result = analyze(TrueModel(spec), run.model, q)
+    write_report(result, folder, max_table_q=max(k, 3))
+    return {"summary": summary_numbers(result), "paper_q": k, "points": len(q),
+            "report": str(folder / "report.md")}

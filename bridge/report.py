@@ -1,0 +1,284 @@
+"""The report of a task run (``OUT/report.md``) and its figures.
+
+The report puts Table III's row for the task (the paper's figures) beside ours, summarises the
+matrix-equivalence analysis of every physics model (details in ``analyze/*/report.md``), and
+draws the figures of the paper's Section IV and Appendix B: loss curves (Figs. 21-22),
+rollouts of the physics and black-box models against the truth from the same initial state
+with their absolute errors (Figs. 8, 11, 23, 29, 35), long rollouts (Fig. 9), rollouts with
+another step size (Figs. 24-25) and, for Task 5, the error against the sampling rate (Fig. 10).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .tables import format_mean_std, table_iii_comparison, to_markdown, write_table
+
+_NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
+
+
+def _model_size(kind: str, m: dict) -> str:
+    """Model sizes written like Table III: (M)*2 + D + A for physics nets, W*D for the FNN."""
+    if kind == "blackbox":
+        return f"{m['hidden'][0]}*{m['hidden'][1]}"
+    mass, d, a = m["mass"], m["damping"], m["input"]
+    return f"({mass[0]}*{mass[1]})*2 + {d[0]}*{d[1]} + {a[0]}*{a[1]}"
+
+
+def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
+    pr, tr = entry["predict"], entry["train"]
+    m = plan.models[kind]
+    pairs = tr["metrics"].get("pairs", {})
+    return {
+        "network": kind,
+        "timestep_s": files["timestep"],
+        "model": _model_size(kind, m),
+        "samples": pairs.get("train", tr.get("samples")),
+        "epochs": tr["epochs"],
+        "train_error": {"mean": pr["train_error"]["mean"], "std": pr["train_error"]["std"]},
+        "test_error": {"mean": pr["test_error"]["mean"], "std": pr["test_error"]["std"]},
+        "prediction_error": {
+            "mean": pr["prediction_error"]["mean"],
+            "std": pr["prediction_error"]["std"],
+            "horizon_s": pr["prediction_error"]["horizon_s"],
+        },
+    }
+
+
+def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -> Path:
+    """Write ``out/report.md`` (and the figures it shows) for one task run."""
+    from .pipelines import machine_description
+
+    out = Path(out)
+    fig_dir = out / "figures"
+    fig_dir.mkdir(parents=True, exist_ok=True)
+    lines = [
+        f"# {plan.task}: {spec.description or spec.name}",
+        "",
+        f"`softpinn reproduce {plan.task}{' --quick' if plan.quick else ''}` "
+        f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); "
+        f"wall time {seconds:.0f} s on {machine_description()}.",
+        "",
+        "Errors as in Table III: train and test error are the one-step loss of eq. 8 (eq. 9 "
+        "for Hamiltonian models) per pair, mean ± std over pairs; the prediction error is the "
+        "mean squared error of q over a rollout from the true initial state with the true "
+        "inputs, mean ± std over test trajectories.",
+        "",
+    ]
+    physics_kinds = [k for k in plan.models if k != "blackbox"]
+    for vname, vres in results["variants"].items():
+        files = results["data"]["variants"][vname]
+        models = vres["models"]
+        variant = None if vname == "main" else vname
+        title = "" if variant is None else f" ({vname} data)"
+        lines += [f"## Table III{title}", ""]
+        for kind in physics_kinds:
+            if kind not in models:
+                continue
+            ours = {"physics": _ours_entry(kind, plan, files, models[kind])}
+            if "blackbox" in models:
+                ours["blackbox"] = _ours_entry("blackbox", plan, files, models["blackbox"])
+            paper_variant = variant
+            if plan.task == "task5" and "blackbox" in ours and vname not in ("fixed_0.0002s",
+                                                                             "100Hz"):
+                ours.pop("blackbox")
+            table = table_iii_comparison(
+                plan.task, ours, variant=paper_variant,
+                caption=f"{plan.task}{title}: paper's Table III and ours "
+                        f"({_NETWORK[kind]} physics model)",
+            )
+            stem = f"table_iii_{vname}_{kind}"
+            write_table(table, out / "tables", stem)
+            lines += [to_markdown(table), ""]
+        lines += _variant_figures(plan, vname, models, fig_dir, out)
+    if plan.task == "task5":
+        lines += _rate_figure(plan, results, fig_dir, out)
+    lines += ["## Learned matrices against the true ones", ""]
+    for vname, vres in results["variants"].items():
+        for kind, entry in vres["models"].items():
+            if "analyze" not in entry:
+                continue
+            lines += _analysis_section(plan, vname, kind, entry["analyze"], out)
+    lines += [
+        "## Settings",
+        "",
+        "Everything that made these numbers is in `plan.json` (data, networks, budgets), the "
+        "data sets' `meta`, each run's `config.json`, and `results.json`.",
+        "",
+    ]
+    path = out / "report.md"
+    tmp = out / ".report.md.tmp"
+    tmp.write_text("\n".join(lines))
+    os.replace(tmp, path)
+    return path
+
+
+def _rel(path: Path, out: Path) -> str:
+    return os.path.relpath(path, out)
+
+
+def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[str]:
+    s = an["summary"]
+    where = "" if vname == "main" else f", {vname} data"
+    lines = [f"### {_NETWORK[kind]} model{where}", ""]
+    lines += [
+        f"{an['points']} configurations ({an['paper_q']} from the paper's tables, the rest "
+        "sampled in the data's range). Relative residual ‖P X̂ − X‖/‖X‖ over all of them:",
+        "",
+        "| transform | M or M⁻¹ | D | G | A | α | ‖P − αI‖/‖P‖ |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, r in s.items():
+        res = r["residual"]
+        mass = res.get("M", res.get("M_inv"))
+        cells = [_fmt(mass), _fmt(res.get("D")), _fmt(res.get("G")), _fmt(res.get("A")),
+                 _fmt(r.get("alpha")), _fmt(r.get("distance_from_alpha_I"))]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    report = Path(an["report"])
+    lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
+                  f"({_rel(report, out)}).", ""]
+    scatter = report.parent / "scatter.png"
+    if scatter.is_file():
+        lines += [f"![true against transformed learned entries]({_rel(scatter, out)})", ""]
+    return lines
+
+
+def _fmt(x) -> str:
+    if x is None:
+        return "–"
+    if isinstance(x, (int, float)) and np.isfinite(x):
+        return f"{x:.3g}"
+    return str(x)
+
+
+# ----------------------------------------------------------------------------------- figures
+
+
+def _load_history(run: Path) -> list[dict]:
+    from learn.checkpoint import read_history
+
+    path = run / "history.csv"
+    if not path.is_file():
+        members = sorted(run.glob("seed-*/history.csv"))
+        if not members:
+            return []
+        path = members[0]
+    return read_history(path)
+
+
+def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from learn.plots import plot_loss_curves
+
+    lines: list[str] = []
+    hist = {k: _load_history(Path(e["train"]["run"])) for k, e in models.items()}
+    loss_path = plot_loss_curves(list(hist.values()), fig_dir / f"loss_{vname}.png",
+                                 labels=[_NETWORK[k] for k in hist],
+                                 title=f"{plan.task} {vname}: loss (train solid, test dashed)")
+    lines += [f"![loss curves]({_rel(loss_path, out)})", ""]
+    rolls = {}
+    for k, e in models.items():
+        path = Path(out) / "predict" / vname / k / "rollouts.npz"
+        if path.is_file():
+            with np.load(path) as z:
+                rolls[k] = {key: z[key] for key in z.files}
+    if not rolls:
+        return lines
+    for prefix, what in (("main", f"prediction over {plan.horizon:g} s"),
+                         ("long", f"long prediction over {plan.long_horizon:g} s"),
+                         ("other", f"prediction with step {plan.other_dt:g} s")):
+        fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+        any_ = False
+        for k, r in rolls.items():
+            if f"{prefix}_t" not in r:
+                continue
+            t, qt, qp = r[f"{prefix}_t"], r[f"{prefix}_q_true"], r[f"{prefix}_q_pred"]
+            if not any_:
+                for i in range(qt.shape[1]):
+                    axes[0].plot(t, qt[:, i], "k-", lw=1.5, label="truth" if i == 0 else None)
+            style = "--" if k != "blackbox" else "^"
+            for i in range(qp.shape[1]):
+                kw = {"markevery": max(1, len(t) // 25), "ms": 4} if style == "^" else {}
+                axes[0].plot(t, qp[:, i], style, lw=1.2,
+                             label=_NETWORK[k] if i == 0 else None, **kw)
+            err = np.abs(qp - qt)
+            axes[1].semilogy(t, np.maximum(err.max(axis=1), 1e-16), style, lw=1.2,
+                             label=_NETWORK[k], **({"markevery": max(1, len(t) // 25), "ms": 4}
+                                                    if style == "^" else {}))
+            any_ = True
+        if not any_:
+            plt.close(fig)
+            continue
+        axes[0].set_ylabel("q")
+        axes[0].set_title(f"{plan.task} {vname}: {what}, test trajectory, same initial state")
+        axes[0].legend(fontsize=8)
+        axes[0].grid(alpha=0.3)
+        axes[1].set_ylabel("max |q − q̂|")
+        axes[1].set_xlabel("t [s]")
+        axes[1].grid(alpha=0.3, which="both")
+        fig.tight_layout()
+        path = fig_dir / f"rollout_{prefix}_{vname}.png"
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        lines += [f"![{what}]({_rel(path, out)})", ""]
+    err_lines = ["| model | prediction error | long prediction | other step |",
+                 "|---|---|---|---|"]
+    for k, e in models.items():
+        pr = e["predict"]
+        err_lines.append(
+            f"| {_NETWORK[k]} | "
+            f"{format_mean_std(pr['prediction_error']['mean'], pr['prediction_error']['std'])}"
+            f" ({pr['prediction_error']['horizon_s']:g} s) | "
+            f"{format_mean_std(pr['long_prediction_error']['mean'], pr['long_prediction_error']['std'])}"
+            f" ({pr['long_prediction_error']['horizon_s']:g} s) | "
+            f"{format_mean_std(pr['other_dt_prediction_error']['mean'], pr['other_dt_prediction_error']['std'])}"
+            f" (dt {pr['other_dt_prediction_error']['dt']:g} s) |"
+        )
+    return lines + err_lines + [""]
+
+
+def _rate_figure(plan, results: dict, fig_dir: Path, out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rates, means, stds = [], [], []
+    for vname, vres in results["variants"].items():
+        if not vname.endswith("Hz") or "lagrangian" not in vres["models"]:
+            continue
+        pe = vres["models"]["lagrangian"]["predict"]["prediction_error"]
+        rates.append(float(vname[:-2]))
+        means.append(pe["mean"])
+        stds.append(pe["std"] or 0.0)
+    if not rates:
+        return []
+    order = np.argsort(rates)
+    r, mu, sd = (np.asarray(a)[order] for a in (rates, means, stds))
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.errorbar(r, mu, yerr=sd, fmt="o-", capsize=4, label="ours (Lagrangian)")
+    paper = {50.0: 2.098, 100.0: 1.69, 1000.0: 0.089}
+    pr = [x for x in r if x in paper]
+    if pr:
+        ax.plot(pr, [paper[x] for x in pr], "s--", label="paper (Table III)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("sampling rate [Hz]")
+    ax.set_ylabel(f"prediction error ({plan.horizon:g} s)")
+    ax.set_title("task5: prediction error against sampling rate (Fig. 10)")
+    ax.grid(alpha=0.3, which="both")
+    ax.legend()
+    fig.tight_layout()
+    path = fig_dir / "error_vs_rate.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return ["## Prediction error against sampling rate (Fig. 10)", "",
+            f"![error against sampling rate]({_rel(path, out)})", ""]
