@@ -1,0 +1,430 @@
+"""Simulate the forward dynamics M q̈ + C q̇ + G + D q̇ = A u (eq. 4) of a model.
+
+Two integrators, both driven by the model's ``"ode"`` function ``x = [q; q̇] -> ẋ`` (compiled
+C where a compiler exists, see :mod:`symbolic.codegen`) and an input u(t) that is a known
+function of time (:mod:`symbolic.signals`), evaluated exactly inside the integrator:
+
+* ``cvodes`` (SUNDIALS, variable step, BDF with Newton iterations; CasADi's
+  ``integrator(name, "cvodes", dae, t0, grid, opts)``) with the outputs on a fixed-rate grid.
+  The Jacobian of the compiled ode comes from finite differences (``enable_fd``): an exact
+  Jacobian generated as C is too large to compile for two segments (DESIGN.md, pitfalls);
+* ``rk4``: fixed-step classical Runge-Kutta with step ``dt`` (the paper's Task 5 fixed-step
+  data, dt = 0.0002 s), outputs decimated to the output rate. The steps are a CasADi
+  ``mapaccum`` of ``mapaccum`` (no Python loop per step).
+
+Many trajectories run in parallel: the integrator is ``map``-ped over a chunk of trajectories
+with CasADi's ``"thread"`` parallelization; chunks advance a progress callback.
+
+A trajectory that reaches a singularity of the model (the ``phi-theta`` parameterization at
+theta = 0, Fig. 12 of the paper) is never returned with NaN: a non-finite state, a mass
+matrix with condition number above ``max_condition`` or a failure of cvodes raises
+:class:`SingularityError` naming the trajectory, the time and the state.
+
+The output grid is t_k = k / rate, k = 0 .. round(duration * rate) - 1 (so 10 s at 50 Hz are
+500 samples, as counted in Table III).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .errors import UserError
+from .signals import Signal
+
+INTEGRATORS = ("cvodes", "rk4")
+
+
+class SimulationError(UserError):
+    """A simulation that cannot be carried out as asked."""
+
+
+class SingularityError(SimulationError):
+    """The state reached a singularity (non-finite, ill-conditioned, or cvodes failed)."""
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    """How to integrate.
+
+    ``rate`` is the output rate [Hz]; ``dt`` the fixed RK4 step (default ``1 / rate``), which
+    must divide the output interval. ``rtol``/``atol`` are cvodes' tolerances. ``max_condition``
+    bounds cond(M(q)) at the output samples (None: no check); ``max_num_steps`` bounds cvodes'
+    steps per output interval. ``threads`` is the number of
+    trajectories integrated at once.
+    """
+
+    integrator: str = "cvodes"
+    duration: float = 10.0
+    rate: float = 100.0
+    dt: float | None = None
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    max_num_steps: int = 20_000
+    max_condition: float | None = 1e12
+    threads: int = 2
+
+    def __post_init__(self):
+        if self.integrator not in INTEGRATORS:
+            raise SimulationError(
+                f"integrator: expected one of {', '.join(INTEGRATORS)}, got {self.integrator!r}"
+            )
+        if not (np.isfinite(self.duration) and self.duration > 0):
+            raise SimulationError(f"duration: must be positive, got {self.duration}")
+        if not (np.isfinite(self.rate) and self.rate > 0):
+            raise SimulationError(f"rate: must be a positive number of Hz, got {self.rate}")
+        if self.samples < 2:
+            raise SimulationError(
+                f"duration * rate: must give at least 2 samples, got "
+                f"{self.duration} s at {self.rate} Hz"
+            )
+        if self.dt is not None:
+            if not (np.isfinite(self.dt) and self.dt > 0):
+                raise SimulationError(f"dt: must be positive, got {self.dt}")
+            ratio = 1.0 / (self.rate * self.dt)
+            if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
+                raise SimulationError(
+                    f"dt: the output interval 1/rate = {1 / self.rate:g} s must be a whole "
+                    f"multiple of dt = {self.dt:g} s"
+                )
+        for name in ("rtol", "atol"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise SimulationError(f"{name}: must be positive, got {v}")
+        if self.threads < 1:
+            raise SimulationError(f"threads: must be at least 1, got {self.threads}")
+
+    @property
+    def samples(self) -> int:
+        return int(round(self.duration * self.rate))
+
+    @property
+    def step(self) -> float:
+        return self.dt if self.dt is not None else 1.0 / self.rate
+
+    @property
+    def substeps(self) -> int:
+        return int(round(1.0 / (self.rate * self.step)))
+
+    def times(self) -> np.ndarray:
+        return np.arange(self.samples) / self.rate
+
+    def describe(self) -> dict:
+        """What goes into a dataset's ``meta`` (integrator, tolerances or step, rate)."""
+        d = asdict(self)
+        if self.integrator == "cvodes":
+            d.pop("dt")
+            d["method"] = "cvodes (SUNDIALS CVODES, variable-step BDF, Newton, dense, FD Jacobian)"
+        else:
+            for k in ("rtol", "atol", "max_num_steps"):
+                d.pop(k)
+            d["dt"] = self.step
+            d["substeps_per_sample"] = self.substeps
+            d["method"] = "classical Runge-Kutta 4, fixed step"
+        d["samples_per_trajectory"] = self.samples
+        d["input"] = "exact: u(t) evaluated symbolically in t inside the integrator"
+        return d
+
+
+@dataclass
+class SimResult:
+    """Trajectories on the output grid: ``x`` (K, T, 2n), ``u`` (K, T, m), ``qdd`` and ``p``
+    (K, T, n), ``t`` (T,)."""
+
+    t: np.ndarray
+    x: np.ndarray
+    u: np.ndarray
+    qdd: np.ndarray
+    p: np.ndarray
+    config: SimulationConfig
+    info: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return self.qdd.shape[-1]
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.x[..., : self.n]
+
+    @property
+    def qd(self) -> np.ndarray:
+        return self.x[..., self.n :]
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def _signal_params(signals: Sequence[Signal]) -> np.ndarray:
+    return (
+        np.stack([s.params() for s in signals], axis=1)
+        if signals[0].params().size
+        else np.zeros((0, len(signals)))
+    )
+
+
+def _dae(ode: ca.Function, signal: Signal, nx: int):
+    """x, tau, p = [t_start; signal params], xdot = ode(x, u(t_start + tau))."""
+    x = ca.MX.sym("x", nx)
+    tau = ca.MX.sym("t")
+    npar = len(signal.params())
+    p = ca.MX.sym("p", 1 + npar)
+    u = signal.symbolic(p[0] + tau, p[1:])
+    return {"x": x, "t": tau, "p": p, "ode": ode(x, u)}
+
+
+def cvodes_integrator(
+    ode: ca.Function,
+    signal: Signal,
+    nx: int,
+    grid: np.ndarray,
+    config: SimulationConfig,
+    name: str = "sim",
+) -> ca.Function:
+    """A CasADi cvodes integrator with outputs at ``grid`` (starting at 0)."""
+    opts = {
+        "abstol": config.atol,
+        "reltol": config.rtol,
+        "max_num_steps": config.max_num_steps,
+        "error_on_fail": True,
+        "disable_internal_warnings": True,
+    }
+    return ca.integrator(name, "cvodes", _dae(ode, signal, nx), 0.0, list(grid), opts)
+
+
+def rk4_integrator(
+    ode: ca.Function, signal: Signal, nx: int, config: SimulationConfig
+) -> ca.Function:
+    """F(x0, p) -> x on the output grid (nx, T), fixed-step RK4 by nested ``mapaccum``."""
+    dt = config.step
+    x = ca.MX.sym("x", nx)
+    t = ca.MX.sym("t")
+    npar = len(signal.params())
+    p = ca.MX.sym("p", npar)
+
+    def f(xx, tt):
+        return ode(xx, signal.symbolic(tt, p))
+
+    k1 = f(x, t)
+    k2 = f(x + dt / 2 * k1, t + dt / 2)
+    k3 = f(x + dt / 2 * k2, t + dt / 2)
+    k4 = f(x + dt * k3, t + dt)
+    step = ca.Function(
+        "rk4_step", [x, t, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], ["x", "t", "p"], ["xf"]
+    )
+    sub = config.substeps
+    inner = step.mapaccum("rk4_substeps", sub)
+    t0 = ca.MX.sym("t0")
+    offsets = ca.DM(np.arange(sub) * dt).T
+    xs = inner(x, t0 + offsets, p)
+    sample = ca.Function("rk4_sample", [x, t0, p], [xs[:, -1]], ["x", "t0", "p"], ["xf"])
+    outer = sample.mapaccum("rk4_samples", config.samples - 1)
+    tgrid = ca.DM(config.times()[:-1]).T
+    xo = outer(x, tgrid, p)
+    return ca.Function("rk4", [x, p], [ca.horzcat(x, xo)], ["x0", "p"], ["xf"])
+
+
+def simulate(
+    fns: Mapping[str, ca.Function],
+    x0: np.ndarray,
+    signals: Sequence[Signal],
+    config: SimulationConfig,
+    *,
+    progress: Callable[[int], None] | None = None,
+) -> SimResult:
+    """Integrate K trajectories from the initial states ``x0`` (K, 2n) under ``signals`` (K).
+
+    ``fns`` holds the model's functions (keys ``"ode"``, ``"forward"``, ``"momentum"``,
+    ``"M"``; see :func:`symbolic.functions.functions`), compiled or not. ``progress`` is called
+    with the number of trajectories finished after every chunk.
+    """
+    x0 = np.atleast_2d(np.asarray(x0, dtype=float))
+    ode = fns["ode"]
+    nx = ode.size1_in(0)
+    n = nx // 2
+    m = ode.size1_in(1) if ode.n_in() > 1 else 0
+    if x0.shape[1] != nx:
+        raise SimulationError(
+            f"initial state: expected {nx} values per trajectory (q and qd), got {x0.shape[1]}"
+        )
+    if not np.all(np.isfinite(x0)):
+        raise SimulationError("initial state: values must be finite")
+    if len(signals) != len(x0):
+        raise SimulationError(
+            f"signals: expected one per trajectory ({len(x0)}), got {len(signals)}"
+        )
+    for s in signals:
+        if s.m != m:
+            raise SimulationError(f"signal: expected {m} inputs, got {s.m}")
+    k_all = len(x0)
+    t = config.times()
+    xs = np.empty((k_all, len(t), nx))
+    start = time.perf_counter()
+    groups: dict[tuple, list[int]] = {}
+    for i, s in enumerate(signals):
+        groups.setdefault(s.structure(), []).append(i)
+    for idx in groups.values():
+        proto = signals[idx[0]]
+        if config.integrator == "cvodes":
+            f = cvodes_integrator(ode, proto, nx, t, config)
+        else:
+            f = rk4_integrator(ode, proto, nx, config)
+        chunk = config.threads
+        for c0 in range(0, len(idx), chunk):
+            ids = idx[c0 : c0 + chunk]
+            fm = f.map(len(ids), "thread", min(config.threads, len(ids))) if len(ids) > 1 else f
+            p = _signal_params([signals[i] for i in ids])
+            if config.integrator == "cvodes":
+                p = np.vstack([np.zeros((1, len(ids))), p])
+            try:
+                out = fm(x0=x0[ids].T, p=p)["xf"]
+            except RuntimeError as exc:
+                for i in ids:
+                    _locate_failure(ode, signals[i], nx, x0[i], t, config, i)
+                raise SingularityError(
+                    f"trajectories {ids}: the integrator failed: {' '.join(str(exc).split())}"
+                ) from None
+            arr = np.asarray(out).reshape(nx, len(ids), len(t)).transpose(1, 2, 0)
+            xs[ids] = arr
+            for j, i in enumerate(ids):
+                _check_finite(arr[j], t, i, n)
+            if progress is not None:
+                progress(len(ids))
+    integrate_s = time.perf_counter() - start
+
+    u = np.stack([s(t) for s in signals]) if k_all else np.zeros((0, len(t), m))
+    flat_x = xs.reshape(-1, nx)
+    flat_u = u.reshape(k_all * len(t), m)
+    post = time.perf_counter()
+    check = config.max_condition is not None and "M" in fns
+    qdd, mom, mm = _postprocess(fns, flat_x, flat_u, n, config.threads)
+    for k in range(k_all):
+        rows = slice(k * len(t), (k + 1) * len(t))
+        _check_finite(np.hstack([xs[k], qdd[rows]]), t, k, n, what="acceleration")
+    max_cond = None
+    if check:
+        cond = condition_numbers(mm.reshape(k_all, len(t), n, n))
+        max_cond = float(np.max(cond)) if cond.size else None
+        bad = np.argwhere(~(cond <= config.max_condition))
+        if len(bad):
+            k, j = bad[0]
+            raise SingularityError(
+                f"trajectory {k}: the mass matrix is ill-conditioned (cond = {cond[k, j]:.3g} > "
+                f"{config.max_condition:g}) at t = {t[j]:.6g} s, state "
+                f"{_fmt(xs[k, j], n)}; the model is singular there (phi-theta at theta = 0?): "
+                'use parameterization = "delta"'
+            )
+    info = {
+        "integrate_seconds": integrate_s,
+        "postprocess_seconds": time.perf_counter() - post,
+        "max_mass_condition": max_cond,
+    }
+    return SimResult(
+        t=t,
+        x=xs,
+        u=u,
+        qdd=qdd.reshape(k_all, len(t), n),
+        p=mom.reshape(k_all, len(t), n),
+        config=config,
+        info=info,
+    )
+
+
+def _postprocess(fns, x, u, n, threads):
+    """qdd = forward(q, qd, u), M(q) and p = M qd at every sample: one mapped call."""
+    xs = ca.MX.sym("x", 2 * n)
+    us = ca.MX.sym("u", u.shape[1])
+    q, qd = xs[:n], xs[n:]
+    if "M" in fns:
+        outs = [fns["forward"](q, qd, us), ca.reshape(fns["M"](q), n * n, 1)]
+    else:
+        outs = [fns["forward"](q, qd, us), fns["momentum"](q, qd)]
+    post = ca.Function("post", [xs, us], [ca.vertcat(*outs)])
+    res = batched(post, x, u, threads=threads)
+    if "M" not in fns:
+        return res[:, :n], res[:, n:], None
+    mass = res[:, n:].reshape(-1, n, n).transpose(0, 2, 1)
+    return res[:, :n], np.einsum("kij,kj->ki", mass, x[:, n:]), mass
+
+
+def batched(fn: ca.Function, *args: np.ndarray, threads: int = 1) -> np.ndarray:
+    """Evaluate ``fn`` (first output) on N rows at once with ``Function.map``; returns (N, ...).
+
+    Each argument is (N, size) (a row per sample). A matrix-valued output comes back as
+    (N, rows, cols).
+    """
+    nrows = args[0].shape[0]
+    if nrows == 0:
+        return np.zeros((0,) + fn.size_out(0))
+    fm = fn.map(nrows, "thread", threads) if threads > 1 else fn.map(nrows)
+    ins = [np.asarray(a, dtype=float).reshape(nrows, -1).T for a in args]
+    out = np.asarray(fm(*ins) if fn.n_out() == 1 else fm(*ins)[0])
+    r, c = fn.size_out(0)
+    if c == 1:
+        return out.reshape(r, nrows).T
+    return out.reshape(r, nrows, c).transpose(1, 0, 2)
+
+
+def condition_numbers(mats: np.ndarray) -> np.ndarray:
+    """cond_2 of symmetric matrices (..., n, n) from their eigenvalues; inf if singular."""
+    if mats.size == 0:
+        return np.zeros(mats.shape[:-2])
+    mats = np.nan_to_num(mats, nan=np.inf)
+    if not np.all(np.isfinite(mats)):
+        return np.where(np.all(np.isfinite(mats), axis=(-1, -2)), 0.0, np.inf)
+    ev = np.abs(np.linalg.eigvalsh(mats))
+    with np.errstate(divide="ignore"):
+        return np.where(ev.min(-1) > 0, ev.max(-1) / np.maximum(ev.min(-1), 1e-300), np.inf)
+
+
+def _fmt(x: np.ndarray, n: int) -> str:
+    q = ", ".join(f"{v:.6g}" for v in x[:n])
+    qd = ", ".join(f"{v:.6g}" for v in x[n:])
+    return f"q = [{q}], qd = [{qd}]"
+
+
+def _check_finite(arr: np.ndarray, t: np.ndarray, k: int, n: int, what: str = "state"):
+    bad = ~np.all(np.isfinite(arr), axis=1)
+    if bad.any():
+        j = int(np.argmax(bad))
+        last = (
+            f"last finite state at t = {t[j - 1]:.6g} s: {_fmt(arr[j - 1, : 2 * n], n)}"
+            if j
+            else f"at t = 0: {_fmt(arr[0, : 2 * n], n)}"
+        )
+        raise SingularityError(
+            f"trajectory {k}: the {what} is not finite at t = {t[j]:.6g} s ({last}); the model is "
+            'singular there (phi-theta at theta = 0?): use parameterization = "delta"'
+        )
+
+
+def _locate_failure(ode, signal, nx, x0, t, config, k):
+    """Integrate one output interval at a time to name where cvodes failed.
+
+    Raises :class:`SingularityError` for a trajectory that fails; returns for one that does not.
+    """
+    n = nx // 2
+    dt = t[1] - t[0]
+    f = cvodes_integrator(ode, signal, nx, np.array([0.0, dt]), config, name="locate")
+    x = np.asarray(x0, dtype=float)
+    params = signal.params()
+    for j in range(len(t) - 1):
+        try:
+            xn = np.asarray(f(x0=x, p=np.concatenate([[t[j]], params]))["xf"])[:, -1]
+        except RuntimeError:
+            raise SingularityError(
+                f"trajectory {k}: cvodes failed between t = {t[j]:.6g} s and {t[j + 1]:.6g} s, "
+                f"starting from {_fmt(x, n)}; the model is singular or stiff there "
+                '(phi-theta at theta = 0?): use parameterization = "delta" or other tolerances'
+            ) from None
+        if not np.all(np.isfinite(xn)):
+            raise SingularityError(
+                f"trajectory {k}: the state is not finite at t = {t[j + 1]:.6g} s (last finite "
+                f"at t = {t[j]:.6g} s: {_fmt(x, n)}); the model is singular there (phi-theta at "
+                'theta = 0?): use parameterization = "delta"'
+            )
+        x = xn
