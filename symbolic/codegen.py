@@ -77,8 +77,9 @@ def find_compiler(compiler: str | os.PathLike | None = None) -> str | None:
     return None
 
 
-def content_hash(fns: Mapping[str, ca.Function], compiler: str = "", flags: Sequence[str] = ()
-                 ) -> str:
+def content_hash(
+    fns: Mapping[str, ca.Function], compiler: str = "", flags: Sequence[str] = ()
+) -> str:
     """SHA-256 (hex, 24 characters) of the functions' serialized form, compiler and flags."""
     h = hashlib.sha256()
     h.update(f"casadi {ca.__version__}\0compiler {compiler}\0flags {' '.join(flags)}\0".encode())
@@ -102,8 +103,14 @@ def write_c(fns: Mapping[str, ca.Function], directory: Path, stem: str) -> Path:
     return Path(cg.generate(str(directory) + os.sep))
 
 
-def compile_c(source: Path, library: Path, *, compiler: str, flags: Sequence[str] = DEFAULT_FLAGS,
-              timeout: float = DEFAULT_TIMEOUT) -> float:
+def compile_c(
+    source: Path,
+    library: Path,
+    *,
+    compiler: str,
+    flags: Sequence[str] = DEFAULT_FLAGS,
+    timeout: float = DEFAULT_TIMEOUT,
+) -> float:
     """Compile ``source`` into the shared library ``library`` atomically; return the seconds taken.
 
     The output goes to a temporary file in the same directory, installed with ``os.replace``.
@@ -115,8 +122,9 @@ def compile_c(source: Path, library: Path, *, compiler: str, flags: Sequence[str
     cmd = [compiler, *flags, str(source), "-o", tmp, "-lm"]
     start = time.perf_counter()
     try:
-        with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                              start_new_session=True) as proc:
+        with subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        ) as proc:
             try:
                 _, err = proc.communicate(timeout=timeout)
             except subprocess.TimeoutExpired:
@@ -146,8 +154,9 @@ def _kill_group(proc: subprocess.Popen) -> None:
     proc.communicate()
 
 
-def load_external(fns: Mapping[str, ca.Function], library: Path, *, enable_fd: bool = True
-                  ) -> dict[str, ca.Function]:
+def load_external(
+    fns: Mapping[str, ca.Function], library: Path, *, enable_fd: bool = True
+) -> dict[str, ca.Function]:
     """Load every function back from ``library`` with ``casadi.external`` (absolute path).
 
     ``enable_fd`` lets CasADi differentiate a loaded function by finite differences (the
@@ -207,7 +216,8 @@ def compile_functions(
             warnings.warn(
                 f"no C compiler found (compiler setting: {setting}); the equations of motion run "
                 "in CasADi's virtual machine, which is slower",
-                CompilerWarning, stacklevel=2,
+                CompilerWarning,
+                stacklevel=2,
             )
         return Compiled(functions=dict(fns), compiled=False, from_cache=False)
     key = content_hash(fns, cc, flags)
@@ -222,13 +232,30 @@ def compile_functions(
         source = write_c(fns, root, stem)
         gen_s = time.perf_counter() - t0
         comp_s = compile_c(source, library, compiler=cc, flags=flags, timeout=timeout)
-        (root / "functions.json").write_text(json.dumps(
-            {"functions": {k: f.name() for k, f in fns.items()}, "compiler": cc,
-             "flags": list(flags), "casadi": ca.__version__}, indent=1))
+        (root / "functions.json").write_text(
+            json.dumps(
+                {
+                    "functions": {k: f.name() for k, f in fns.items()},
+                    "compiler": cc,
+                    "flags": list(flags),
+                    "casadi": ca.__version__,
+                },
+                indent=1,
+            )
+        )
     loaded = load_external(fns, library, enable_fd=enable_fd)
-    return Compiled(functions=loaded, compiled=True, from_cache=from_cache, library=library,
-                    source=source, key=key, compile_seconds=comp_s, generate_seconds=gen_s,
-                    compiler=cc, flags=flags)
+    return Compiled(
+        functions=loaded,
+        compiled=True,
+        from_cache=from_cache,
+        library=library,
+        source=source,
+        key=key,
+        compile_seconds=comp_s,
+        generate_seconds=gen_s,
+        compiler=cc,
+        flags=flags,
+    )
 
 
 def compiled(fns: Mapping[str, ca.Function], **kwargs) -> dict[str, ca.Function]:
@@ -240,8 +267,27 @@ def compiled(fns: Mapping[str, ca.Function], **kwargs) -> dict[str, ca.Function]
 
 
 def expression_sizes(fn: ca.Function) -> dict[str, int]:
-    """Size of a function's expression graph: nodes and instructions (SX or MX)."""
-    return {"n_nodes": int(fn.n_nodes()), "n_instructions": int(fn.n_instructions())}
+    """Size of a function's expression graph: its own nodes and instructions (SX or MX), and
+    for an MX graph the SX nodes/instructions of every SX function it calls (each counted once,
+    a mapped body once): ``sx_nodes``, ``sx_instructions``, ``sx_functions``."""
+    out = {"n_nodes": int(fn.n_nodes()), "n_instructions": int(fn.n_instructions())}
+    if fn.is_a("SXFunction"):
+        out.update(sx_nodes=out["n_nodes"], sx_instructions=out["n_instructions"], sx_functions=1)
+        return out
+    seen = {}
+    try:
+        deps = fn.find_functions()
+    except RuntimeError:  # pragma: no cover - a function kind without dependency listing
+        deps = []
+    for g in deps:
+        if g.is_a("SXFunction") and g.name() not in seen:
+            seen[g.name()] = (int(g.n_nodes()), int(g.n_instructions()))
+    out.update(
+        sx_nodes=sum(v[0] for v in seen.values()),
+        sx_instructions=sum(v[1] for v in seen.values()),
+        sx_functions=len(seen),
+    )
+    return out
 
 
 def generate(
@@ -253,6 +299,7 @@ def generate(
     timeout: float = DEFAULT_TIMEOUT,
     timings: Mapping[str, float] | None = None,
     extra: Mapping | None = None,
+    cache: str | os.PathLike | None | bool = None,
 ) -> dict:
     """Write C source, shared library, CasADi serialized functions and ``summary.json``.
 
@@ -260,7 +307,9 @@ def generate(
     ``casadi.Function.load``), ``softpinn_eom.c``, ``softpinn_eom.so`` (when a compiler is
     found) and ``summary.json`` with the expression sizes, the timings (``timings`` given by the
     caller, e.g. derive and function creation, plus C generation and compilation), the compiler
-    and flags. Returns the summary.
+    and flags. Returns the summary. The library is also installed in the cache (``cache``: a
+    directory, None for the default, False for no), so that :func:`compile_functions` of the same
+    functions finds it.
     """
     _check_names(fns)
     out = Path(out_dir).absolute()
@@ -276,9 +325,15 @@ def generate(
     if cc is not None:
         library = out / "softpinn_eom.so"
         times["compile"] = compile_c(source, library, compiler=cc, flags=flags, timeout=timeout)
+        if cache is not False:
+            _install_in_cache(fns, library, source, cc, flags, cache)
     else:
-        warnings.warn(f"no C compiler found (compiler setting: {compiler or 'default'}); "
-                      "wrote the C source but no shared library", CompilerWarning, stacklevel=2)
+        warnings.warn(
+            f"no C compiler found (compiler setting: {compiler or 'default'}); "
+            "wrote the C source but no shared library",
+            CompilerWarning,
+            stacklevel=2,
+        )
     summary = {
         "directory": str(out),
         "source": source.name,
@@ -288,9 +343,14 @@ def generate(
         "flags": list(flags) if cc else [],
         "casadi": ca.__version__,
         "functions": {
-            key: {"name": fn.name(), "inputs": list(fn.name_in()), "outputs": list(fn.name_out()),
-                  "file": f"{key}.casadi", "symbolic": "SX" if fn.is_a("SXFunction") else "MX",
-                  **expression_sizes(fn)}
+            key: {
+                "name": fn.name(),
+                "inputs": list(fn.name_in()),
+                "outputs": list(fn.name_out()),
+                "file": f"{key}.casadi",
+                "symbolic": "SX" if fn.is_a("SXFunction") else "MX",
+                **expression_sizes(fn),
+            }
             for key, fn in fns.items()
         },
         "timings_s": times,
@@ -301,6 +361,24 @@ def generate(
     tmp.write_text(json.dumps(summary, indent=1))
     os.replace(tmp, out / "summary.json")
     return summary
+
+
+def _install_in_cache(fns, library: Path, source: Path, cc: str, flags, directory) -> None:
+    key = content_hash(fns, cc, tuple(flags))
+    root = cache_dir(None if directory is True else directory) / key
+    target = root / f"softpinn_{key}.so"
+    if target.is_file():
+        return
+    root.mkdir(parents=True, exist_ok=True)
+    for src, dst in ((source, root / f"softpinn_{key}.c"), (library, target)):
+        fd, tmp = tempfile.mkstemp(prefix=f".{dst.stem}-", suffix=".tmp", dir=root)
+        os.close(fd)
+        try:
+            shutil.copyfile(src, tmp)
+            os.replace(tmp, dst)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
 
 def _check_names(fns: Mapping[str, ca.Function]) -> None:

@@ -22,15 +22,21 @@ def toy_functions(tag: str = "toy") -> dict[str, ca.Function]:
     fM = ca.Function(f"{tag}_M", [q], [M], ["q"], ["M"], {"cse": True})
     z = ca.SX.sym("zeta")
     w = ca.SX.sym("w")
-    dens = ca.Function(f"{tag}_density", [q, qd, z, w], [w * ca.exp(z * q[1]) * ca.dot(qd, qd)],
-                       ["q", "qd", "zeta", "w"], ["T"])
+    dens = ca.Function(
+        f"{tag}_density",
+        [q, qd, z, w],
+        [w * ca.exp(z * q[1]) * ca.dot(qd, qd)],
+        ["q", "qd", "zeta", "w"],
+        ["T"],
+    )
     mapped = dens.map(f"{tag}_map", "serial", 5, [0, 1], [0])
     qm, qdm = ca.MX.sym("q", 3), ca.MX.sym("qd", 3)
     nodes = ca.DM(np.linspace(0.1, 0.9, 5)).T
     weights = ca.DM(np.full(5, 0.2)).T
     T = mapped(qm, qdm, nodes, weights)
-    fT = ca.Function(f"{tag}_kinetic", [qm, qdm], [T + ca.mtimes(fM(qm), qdm)[0]], ["q", "qd"],
-                     ["T"])
+    fT = ca.Function(
+        f"{tag}_kinetic", [qm, qdm], [T + ca.mtimes(fM(qm), qdm)[0]], ["q", "qd"], ["T"]
+    )
     return {"M": fM, "kinetic": fT}
 
 
@@ -46,8 +52,9 @@ def test_compiled_agrees_with_virtual_machine(tmp_path):
         assert ext.name_in() == fn.name_in() and ext.name_out() == fn.name_out()
         for _ in range(5):
             args = [rng.normal(size=fn.size_in(i)) for i in range(fn.n_in())]
-            np.testing.assert_allclose(np.asarray(ext(*args)), np.asarray(fn(*args)),
-                                       rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(
+                np.asarray(ext(*args)), np.asarray(fn(*args)), rtol=1e-12, atol=1e-12
+            )
 
 
 def test_cache_hit_on_second_call(tmp_path):
@@ -98,8 +105,9 @@ def test_compiler_timeout_kills_process_group(tmp_path):
     script.chmod(script.stat().st_mode | stat.S_IEXEC)
     start = time.perf_counter()
     with pytest.raises(codegen.CompilerError, match="timeout"):
-        codegen.compile_functions(toy_functions("slow"), directory=tmp_path,
-                                  compiler=str(script), timeout=0.5)
+        codegen.compile_functions(
+            toy_functions("slow"), directory=tmp_path, compiler=str(script), timeout=0.5
+        )
     assert time.perf_counter() - start < 10
     child = int(pidfile.read_text())
     time.sleep(0.2)
@@ -126,7 +134,11 @@ def test_compiler_failure_is_one_line(tmp_path):
 
 def test_generate_writes_source_library_casadi_files_and_summary(tmp_path):
     fns = toy_functions("gen")
-    summary = codegen.generate(fns, tmp_path / "out", timings={"functions": 0.5})
+    summary = codegen.generate(
+        fns, tmp_path / "out", timings={"functions": 0.5}, cache=tmp_path / "cache"
+    )
+    # the library is installed in the cache too: compiling the same functions is a cache hit
+    assert codegen.compile_functions(fns, directory=tmp_path / "cache").from_cache
     out = tmp_path / "out"
     assert (out / "softpinn_eom.c").is_file() and (out / "softpinn_eom.so").is_file()
     on_disk = json.loads((out / "summary.json").read_text())
@@ -156,5 +168,6 @@ def test_task4_generated_code_agrees_with_mx(tmp_path):
             ref = fn.call(args)
             got = res.functions[key].call(args)
             for a, b in zip(got, ref, strict=True):
-                np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12,
-                                           err_msg=key)
+                np.testing.assert_allclose(
+                    np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12, err_msg=key
+                )
