@@ -1,0 +1,369 @@
+"""``softpinn`` subcommands of the symbolic side: models, matrices, derive, simulate.
+
+The commands only map flags onto :mod:`symbolic` functions:
+
+* ``models``: the presets (name, kind, n, m, description);
+* ``matrices MODEL --q ...``: M, M^-1, G, D, A, energy (and C, qdd with ``--qd``) at one q;
+* ``derive MODEL --out DIR``: C source, shared library, CasADi files and ``summary.json``
+  (:func:`symbolic.codegen.generate`);
+* ``simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.datasets.make_dataset`) with
+  the preset's ``[data]`` settings unless flags say otherwise.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from symbolic.errors import UserError
+
+SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "models",
+        help="list the model presets",
+        description="List the model presets (name, kind, n, m, description).",
+    )
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_models)
+
+    p = subparsers.add_parser(
+        "matrices",
+        help="M, M^-1, G, D, A, energy (and C, qdd) of a model at one state",
+        description="Evaluate the true matrices of a model (a preset name or a spec .toml) at q "
+        "(and qd, u). Matrices are printed as nested row lists with --json.",
+    )
+    p.add_argument(
+        "model", metavar="MODEL", help="preset name (see 'softpinn models') or spec file"
+    )
+    p.add_argument(
+        "--q",
+        type=float,
+        nargs="+",
+        required=True,
+        metavar="Q",
+        help="generalized coordinates (n values)",
+    )
+    p.add_argument(
+        "--qd",
+        type=float,
+        nargs="+",
+        metavar="V",
+        help="generalized velocities (n values); adds C and qdd",
+    )
+    p.add_argument("--u", type=float, nargs="+", metavar="U", help="inputs (m values; default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.set_defaults(func=cmd_matrices)
+
+    p = subparsers.add_parser(
+        "derive",
+        help="generate C code, a shared library and CasADi files for a model",
+        description="Derive the equations of motion, write the C source, compile a shared "
+        "library (gcc -O1), save CasADi serialized functions and summary.json (expression "
+        "sizes and timings).",
+    )
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--out", metavar="DIR", help="output directory (default ./<name>-eom)")
+    p.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=600.0,
+        metavar="S",
+        help="compiler timeout in seconds (default 600)",
+    )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="write into a non-empty directory that is not an earlier derive output",
+    )
+    p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="also install the library in this compiled-code cache (default $SOFTPINN_CACHE or "
+        "~/.cache/softpinn), where 'simulate' finds it",
+    )
+    p.set_defaults(func=cmd_derive)
+
+    p = subparsers.add_parser(
+        "simulate",
+        help="simulate trajectories of a model into a dataset file (.npz)",
+        description="Simulate trajectories (compiled equations of motion, cvodes or fixed-step "
+        "RK4) and write a dataset file. Defaults come from the preset's [data] table (the "
+        "paper's settings).",
+    )
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--out", required=True, metavar="FILE.npz", help="dataset file to write")
+    p.add_argument("--trajectories", type=int, metavar="K", help="number of trajectories")
+    p.add_argument("--duration", type=float, metavar="S", help="seconds per trajectory")
+    p.add_argument("--rate", type=float, metavar="HZ", help="output rate [Hz]")
+    p.add_argument(
+        "--dt", type=float, metavar="S", help="fixed RK4 step [s] (implies --integrator rk4)"
+    )
+    p.add_argument("--integrator", choices=("cvodes", "rk4"), help="integrator")
+    p.add_argument("--signal", choices=SIGNALS, help="input signal kind (ranges from [data])")
+    p.add_argument("--seed", type=int, metavar="S", help="random seed")
+    p.add_argument(
+        "--noise",
+        type=float,
+        metavar="SIGMA",
+        help="standard deviation of Gaussian measurement noise (default 0)",
+    )
+    p.add_argument("--rtol", type=float, help="cvodes relative tolerance (default 1e-10)")
+    p.add_argument("--atol", type=float, help="cvodes absolute tolerance (default 1e-10)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=2,
+        metavar="N",
+        help="trajectories integrated at once (default 2)",
+    )
+    p.add_argument(
+        "--no-compile",
+        action="store_true",
+        help="run the equations in CasADi's virtual machine, no C compiler",
+    )
+    p.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="compiled-code cache (default $SOFTPINN_CACHE or ~/.cache/softpinn)",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_simulate)
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def cmd_models(args) -> int:
+    from symbolic.spec import list_presets, load_spec
+
+    rows = []
+    for name in list_presets():
+        spec = load_spec(name)
+        rows.append(
+            {
+                "name": name,
+                "kind": spec.kind,
+                "n": spec.n,
+                "m": spec.m,
+                "description": spec.description,
+            }
+        )
+    if args.json:
+        print(json.dumps({"models": rows}))
+        return 0
+    print(f"{'name':<8} {'kind':<20} {'n':>2} {'m':>2}  description")
+    for r in rows:
+        print(f"{r['name']:<8} {r['kind']:<20} {r['n']:>2} {r['m']:>2}  {r['description']}")
+    return 0
+
+
+def _vector(flag: str, values, size: int, model: str) -> np.ndarray:
+    a = np.asarray(values, dtype=float)
+    if a.size != size:
+        raise UserError(f"{flag}: model '{model}' needs {size} values, got {a.size}")
+    if not np.all(np.isfinite(a)):
+        raise UserError(f"{flag}: values must be finite, got {a.tolist()}")
+    return a
+
+
+def cmd_matrices(args) -> int:
+    from symbolic.model import TrueModel
+    from symbolic.spec import load_spec
+
+    spec = load_spec(args.model)
+    q = _vector("--q", args.q, spec.n, spec.name)
+    qd = _vector("--qd", args.qd, spec.n, spec.name) if args.qd is not None else None
+    u = _vector("--u", args.u, spec.m, spec.name) if args.u is not None else np.zeros(spec.m)
+    if args.u is not None and qd is None:
+        raise UserError("--u: needs --qd (the inputs only enter qdd)")
+    tm = TrueModel(spec)
+    out = {
+        "model": spec.name,
+        "q": q,
+        "M": tm.M(q),
+        "M_inv": tm.M_inv(q),
+        "G": tm.G(q),
+        "D": tm.D(q),
+        "A": tm.A(q),
+        "energy": tm.energy(q, qd if qd is not None else np.zeros(spec.n)),
+    }
+    if qd is not None:
+        out.update({"qd": qd, "u": u, "C": tm.C(q, qd), "qdd": tm.qdd(q, qd, u)})
+    plain = {k: (np.asarray(v).tolist() if not isinstance(v, str) else v) for k, v in out.items()}
+    if args.json:
+        print(json.dumps(plain))
+        return 0
+    with np.printoptions(precision=6, suppress=False, linewidth=100):
+        for key, value in out.items():
+            if key == "model":
+                print(f"model: {value}")
+                continue
+            arr = np.asarray(value)
+            if arr.ndim == 2:
+                print(f"{key} =\n{arr}")
+            else:
+                print(f"{key} = {arr}")
+    return 0
+
+
+def cmd_derive(args) -> int:
+    from symbolic.codegen import generate
+    from symbolic.eom import derive
+    from symbolic.functions import functions
+    from symbolic.spec import load_spec
+
+    spec = load_spec(args.model)
+    out = Path(args.out) if args.out else Path(f"{spec.name}-eom")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    if (
+        out.is_dir()
+        and any(out.iterdir())
+        and not (out / "summary.json").is_file()
+        and not args.force
+    ):
+        raise UserError(
+            f"--out {out}: directory is not empty and holds no earlier derive output (use --force)"
+        )
+    if args.timeout <= 0:
+        raise UserError(f"--timeout: must be positive, got {args.timeout}")
+    t0 = time.perf_counter()
+    derive(spec)
+    t_derive = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    fns = functions(spec)
+    t_functions = time.perf_counter() - t0
+    summary = generate(
+        fns,
+        out,
+        compiler=args.compiler,
+        timeout=args.timeout,
+        timings={"derive": t_derive, "functions": t_functions},
+        cache=args.cache,
+        extra={"model": spec.name, "spec": spec.to_dict(), "n": spec.n, "m": spec.m},
+    )
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    tm = summary["timings_s"]
+    print(f"{spec.name}: wrote {summary['directory']}")
+    print(
+        f"  C source {summary['source']} ({summary['source_bytes'] / 1e6:.2f} MB), library "
+        f"{summary['library']}, {len(summary['functions'])} CasADi files, summary.json"
+    )
+    print("  timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in tm.items()))
+    print(
+        "  forward dynamics: "
+        + ", ".join(
+            f"{k} {v}"
+            for k, v in summary["functions"]["forward"].items()
+            if k in ("n_nodes", "n_instructions", "sx_nodes", "sx_instructions")
+        )
+    )
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from symbolic.datasets import data_config, make_dataset, resample, write_dataset
+    from symbolic.spec import load_spec
+
+    spec = load_spec(args.model)
+    cfg = data_config(spec)
+    out = Path(args.out)
+    if out.suffix != ".npz":
+        raise UserError(f"--out {out}: a dataset file must end in .npz")
+    for flag, value in (
+        ("--duration", args.duration),
+        ("--rate", args.rate),
+        ("--dt", args.dt),
+        ("--rtol", args.rtol),
+        ("--atol", args.atol),
+    ):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise UserError(f"{flag}: must be positive, got {value}")
+    if args.trajectories is not None and args.trajectories < 1:
+        raise UserError(f"--trajectories: must be at least 1, got {args.trajectories}")
+    if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
+        raise UserError(f"--noise: must be a non-negative standard deviation, got {args.noise}")
+    if args.threads < 1:
+        raise UserError(f"--threads: must be at least 1, got {args.threads}")
+    integrator = args.integrator or ("rk4" if args.dt is not None else cfg.integrator)
+    if args.dt is not None and integrator != "rk4":
+        raise UserError("--dt: is the fixed step of --integrator rk4; cvodes takes --rate")
+    # the paper's resampled rates (task 5): the file at the highest, siblings at the others
+    extra_rates: list[float] = []
+    if integrator == "cvodes" and args.rate is None and len(cfg.rates) > 1:
+        extra_rates = sorted(r for r in cfg.rates if r != cfg.rate)
+    targets = [out] + [_sibling(out, r) for r in extra_rates]
+    if not args.force:
+        for path in targets:
+            if path.exists():
+                raise UserError(f"--out {path}: file exists (use --force to overwrite)")
+
+    total = args.trajectories or cfg.total_trajectories(integrator)
+    bar = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc=f"simulate {spec.name}", unit="traj", file=sys.stderr)
+    try:
+        t0 = time.perf_counter()
+        data = make_dataset(
+            spec,
+            trajectories=args.trajectories,
+            duration=args.duration,
+            rate=args.rate,
+            dt=args.dt,
+            integrator=integrator,
+            signal=args.signal,
+            seed=args.seed,
+            noise=args.noise,
+            rtol=args.rtol,
+            atol=args.atol,
+            threads=args.threads,
+            compile=not args.no_compile,
+            cache=args.cache,
+            progress=bar.update if bar is not None else None,
+        )
+        seconds = time.perf_counter() - t0
+    finally:
+        if bar is not None:
+            bar.close()
+    write_dataset(out, data, force=args.force)
+    k, per = data.meta["trajectories"], data.meta["samples_per_trajectory"]
+    print(
+        f"{spec.name}: wrote {out} ({k} trajectories x {per} samples at "
+        f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}) in {seconds:.2f} s"
+    )
+    for rate, path in zip(extra_rates, targets[1:], strict=True):
+        sub = resample(data, rate)
+        write_dataset(path, sub, force=args.force)
+        print(
+            f"{spec.name}: wrote {path} (resampled at {rate:g} Hz, "
+            f"{sub.meta['samples_per_trajectory']} samples per trajectory)"
+        )
+    return 0
+
+
+def _sibling(path: Path, rate: float) -> Path:
+    return path.with_name(f"{path.stem}_{rate:g}hz{path.suffix}")
+
+
+def main(argv=None) -> int:  # pragma: no cover - convenience for ``python -m``
+    from bridge.cli import main as cli_main
+
+    return cli_main(argv)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
