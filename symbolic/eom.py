@@ -20,6 +20,7 @@ from .energies import (
     HoistedPlate,
     LumpedTerms,
     PlateTerms,
+    SegmentMoments,
     Terms,
     gauss_legendre,
 )
@@ -37,6 +38,7 @@ class Part:
     nodes: np.ndarray | None = None
     weights: np.ndarray | None = None
     hoisted: HoistedPlate | None = None
+    moments: SegmentMoments | None = None
 
 
 class SymbolicModel:
@@ -59,8 +61,10 @@ class SymbolicModel:
             nodes, weights = gauss_legendre(self.order)
             for i in range(len(s.segments)):
                 terms = PlateTerms(s, i, self.q, self.qd, self.zeta)
-                fast = HoistedPlate(s, i) if s.kind == "spatial-pcc" and self.hoist else None
-                parts.append(Part(f"seg{i + 1}", terms, nodes, weights, fast))
+                fast = s.kind == "spatial-pcc" and self.hoist
+                parts.append(Part(f"seg{i + 1}", terms, nodes, weights,
+                                  HoistedPlate(s, i) if fast else None,
+                                  SegmentMoments(s, i) if fast else None))
         return parts
 
     # ---------------------------------------------------------------- damping and actuation

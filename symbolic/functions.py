@@ -141,13 +141,22 @@ class _Builder:
         hp, n = part.hoisted, self.n
         k = hp.k
         q, qd = ca.MX.sym("q", n), ca.MX.sym("qd", n)
-        density = hp.density_function(keys, name + "_density")
-        N = len(part.nodes)
-        reduce_in = [j for j in range(density.n_in()) if j not in (2, 3)]
-        mapped = density.map(name + "_map", "serial", N, reduce_in, list(range(len(keys))))
         base = [ca.MX.sym(f, *shape) for f, shape in kin.base_shapes(k).items()] if k else []
-        args = [q[k : k + 3], qd[k : k + 3], ca.DM(part.nodes).T, ca.DM(part.weights).T, *base]
-        blocks = mapped.call(args)
+        nodes = [q[k : k + 3], qd[k : k + 3], ca.DM(part.nodes).T, ca.DM(part.weights).T]
+        N = len(part.nodes)
+        if part.moments is not None and part.moments.supports(keys):
+            # integrate the local moments only, then assemble with the base frame once
+            density = part.moments.density_function(keys, name + "_moments")
+            mapped = density.map(name + "_map", "serial", N, [0, 1],
+                                 list(range(density.n_out())))
+            moments = mapped.call(nodes)
+            blocks = part.moments.assemble_function(keys, name + "_assemble").call(
+                [*moments, *base])
+        else:
+            density = hp.density_function(keys, name + "_density")
+            reduce_in = [j for j in range(density.n_in()) if j not in (2, 3)]
+            mapped = density.map(name + "_map", "serial", N, reduce_in, list(range(len(keys))))
+            blocks = mapped.call([*nodes, *base])
         rest = n - k - 3
         outs = []
         for key, b in zip(keys, blocks, strict=True):
@@ -159,28 +168,37 @@ class _Builder:
         in_names = ["q", "qd"] + (list(kin.BASE_FIELDS) if k else [])
         return ca.Function(name, [q, qd, *base], outs, in_names, list(keys))
 
+    #: fields of the frame after the last segment (only the tip-wrench matrix uses it)
+    TIP_FIELDS = ("Rb", "dtb", "Jwb")
+
     def step(self, i: int) -> ca.Function:
+        spec = self.model.spec
+        last = i == len(spec.segments) - 1
         key = f"step{i}"
         if key not in self._built:
-            self._built[key] = kin.base_step_function(self.model.spec, i,
-                                                      f"{self.prefix}_base{i + 2}")
+            fields = self.TIP_FIELDS if last else kin.BASE_FIELDS
+            name = f"{self.prefix}_tip" if last else f"{self.prefix}_base{i + 2}"
+            self._built[key] = kin.base_step_function(spec, i, name, fields)
         return self._built[key]
 
     def chain(self, q, qd, upto: int) -> list[list]:
         """Base-frame quantities of segments 0..upto-1 (0 = the world frame, no quantities)
-        and, if ``upto`` exceeds the segment count, of the frame after the last segment."""
+        and, if ``upto`` exceeds the segment count, of the frame after the last segment
+        (only :data:`TIP_FIELDS` of it, the rest None)."""
         bases: list[list] = [[]]
         for i in range(upto - 1):
-            bases.append(self.step(i).call([q[3 * i : 3 * i + 3], qd[3 * i : 3 * i + 3],
-                                            *bases[i]]))
+            step = self.step(i)
+            outs = step.call([q[3 * i : 3 * i + 3], qd[3 * i : 3 * i + 3], *bases[i]])
+            got = dict(zip([n[: -len("_next")] for n in step.name_out()], outs, strict=True))
+            bases.append([got.get(f) for f in kin.BASE_FIELDS])
         return bases
 
-    def terms(self, keys: tuple[str, ...], q, qd, tag: str = "") -> list:
-        """Sum over parts of the terms ``keys`` at MX (q, qd), densified."""
+    def terms(self, keys: tuple[str, ...], q, qd, tag: str = "", bases=None) -> list:
+        """Sum over parts of the terms ``keys`` at MX (q, qd), densified (``bases``: the
+        :meth:`chain` at (q, qd) if already computed)."""
         totals = [None] * len(keys)
         if qd is None:  # a function of q only
             qd = ca.MX.zeros(self.n, 1)
-        bases = None
         for part in self.model.parts:
             wanted = tuple(k for k in keys if not _structurally_zero(part, k))
             if not wanted:
@@ -212,28 +230,33 @@ class _Builder:
             self._built["A_expr"] = self._A_function()
         return self._built["A_expr"]
 
+    def uses_chain_for_A(self) -> bool:
+        mdl = self.model
+        return mdl.spec.actuation == "tip-wrench" and mdl.hoist
+
+    def tip_wrench_A(self, bases) -> ca.MX:
+        """A from the frames after each segment (``bases`` of :meth:`chain` with one more
+        step than segments): R_tip = R_b Rz^T, so the tip's body angular Jacobian is Rz Jw_b
+        and R_tip^T Jv has the third row of R_b^T dt_b (see :func:`eom.tip_wrench_matrix`)."""
+        spec, n = self.model.spec, self.n
+        Rz = ca.DM(kin.rot_z(math.pi / spec.actuators_per_segment))
+        cols = []
+        for i in range(len(spec.segments)):
+            b = dict(zip(kin.BASE_FIELDS, bases[i + 1], strict=True))
+            Jb = Rz @ b["Jwb"]
+            Jvb = (b["Rb"].T @ b["dtb"])[2, :]
+            block = ca.horzcat(-Jb[0, :].T, -Jb[1, :].T, Jvb.T)
+            pad = n - 3 * (i + 1)
+            cols.append(ca.vertcat(block, ca.MX(pad, 3)) if pad else block)
+        return ca.densify(ca.horzcat(*cols))
+
     def _A_function(self) -> ca.Function:
         mdl = self.model
-        spec = mdl.spec
-        if spec.actuation == "tip-wrench" and mdl.hoist:
-            # A_i from the frame after segment i: R_tip = R_b Rz^T, so the tip's body angular
-            # Jacobian is Rz Jw_b and R_tip^T Jv has the third row of R_b^T dt_b.
-            n = self.n
-            q = ca.MX.sym("q", n)
-            nseg = len(spec.segments)
-            bases = self.chain(q, ca.MX.zeros(n, 1), nseg + 1)
-            Rz = ca.DM(kin.rot_z(math.pi / spec.actuators_per_segment))
-            fields = kin.BASE_FIELDS
-            cols = []
-            for i in range(nseg):
-                b = dict(zip(fields, bases[i + 1], strict=True))
-                Jb = Rz @ b["Jwb"]
-                Jvb = (b["Rb"].T @ b["dtb"])[2, :]
-                block = ca.horzcat(-Jb[0, :].T, -Jb[1, :].T, Jvb.T)
-                pad = n - 3 * (i + 1)
-                cols.append(ca.vertcat(block, ca.MX(pad, 3)) if pad else block)
-            A = ca.densify(ca.horzcat(*cols))
-            return ca.Function(f"{self.prefix}_A_expr", [q], [A], ["q"], ["A"])
+        if self.uses_chain_for_A():
+            q = ca.MX.sym("q", self.n)
+            bases = self.chain(q, ca.MX.zeros(self.n, 1), len(mdl.spec.segments) + 1)
+            return ca.Function(f"{self.prefix}_A_expr", [q], [self.tip_wrench_A(bases)], ["q"],
+                               ["A"])
         A = mdl.A
         # A never depends on qd (the tip-wrench Jacobian is linear in qd); substitute 0 anyway.
         A = ca.substitute(A, mdl.qd, ca.SX.zeros(self.n))
@@ -267,10 +290,14 @@ class _Builder:
         elif key in ("C", "Cqd"):
             outs, ins = self.terms((key,), q, qd, key), [q, qd]
         elif key == "forward":
-            M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
+            bases = None
+            if self.uses_chain_for_A():  # one pass over the segments for A and the terms
+                bases = self.chain(q, qd, len(self.model.spec.segments) + 1)
+            M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key, bases)
             rhs = -Cqd - G - D @ qd
             if m:
-                rhs = rhs + self.A_function()(q) @ u
+                A = self.tip_wrench_A(bases) if bases is not None else self.A_function()(q)
+                rhs = rhs + A @ u
             qdd = self.solver(1, key)(M, rhs)
             outs, ins = [qdd], [q, qd, u]
         elif key == "ode":

@@ -193,10 +193,6 @@ def base_shapes(k: int) -> dict[str, tuple[int, int]]:
             "wb": (3, 1), "Jwb": (3, k), "wbd": (3, 1), "Jwbd": (3, k)}
 
 
-def _skew_vee(X):
-    return 0.5 * (vee(X) - vee(X.T))
-
-
 def mix(D, p):
     """sum_c D[3c:3c+3, :] p_c, i.e. the columns dR/dq_j (stored as vec(dR), 9 x k) applied
     to the vector p."""
@@ -206,14 +202,16 @@ def mix(D, p):
     return out
 
 
-def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
+def base_step_function(spec: ModelSpec, i: int, name: str,
+                       fields: tuple[str, ...] = BASE_FIELDS) -> ca.Function:
     """One step of the recursion over segments (eq. 14): (q_i, qd_i, base_i) -> base_{i+1}.
 
     base_i are the :data:`BASE_FIELDS` of segment i's base frame (in q_1..q_{i-1}); base_{i+1}
     is the frame after segment i's full transform and the Rz(pi / a_dof) turn. Every derivative
     is assembled by the chain rule from the base quantities and the local transform of segment
     i, so the size of a step grows only linearly with the number of preceding coordinates.
-    Segment 0 has no base input (the base frame is the world frame).
+    Segment 0 has no base input (the base frame is the world frame). ``fields`` selects the
+    outputs (the frame after the last segment is needed only for the tip-wrench matrix).
     """
     seg = spec.segments[i]
     k = 3 * i
@@ -234,6 +232,11 @@ def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
     Rld = jet.jtimes(Rl, ql, qdl)
     Rldd = jet.jtimes(Rld, ql, qdl)
     dRld = jet.jtimes(dRl, ql, qdl)
+    wl = vee(Rl.T @ Rld)  # local body angular velocity, linear in qdl
+    Jwl = ca.jacobian(wl, qdl)
+    wld = jet.jtimes(wl, ql, qdl)
+    Jwld = jet.jtimes(Jwl, ql, qdl)
+    RzT = ca.DM(Rz).T
     Rb, Rbd, Rbdd = base["Rb"], base["Rbd"], base["Rbdd"]
     I3 = ca.DM.eye(3)
     RlRz, RldRz = Rl @ Rz, Rld @ Rz
@@ -256,14 +259,13 @@ def base_step_function(spec: ModelSpec, i: int, name: str) -> ca.Function:
         "dRbd": dRd,
         "Rbdd": Rdd,
         "tbdd": base["tbdd"] + Rbdd @ pl + 2 * Rbd @ pld + Rb @ pldd,
-        "wb": _skew_vee(R.T @ Rd),
-        "Jwb": ca.horzcat(*(_skew_vee(R.T @ dR[:, j].reshape((3, 3))) for j in range(k + 3))),
-        "wbd": _skew_vee(R.T @ Rdd),
-        "Jwbd": ca.horzcat(*(_skew_vee(Rd.T @ dR[:, j].reshape((3, 3))
-                                       + R.T @ dRd[:, j].reshape((3, 3))) for j in range(k + 3))),
+        # body angular velocity: omega' = (Rl Rz)^T omega_b + Rz^T omega_l
+        "wb": RlRz.T @ base["wb"] + RzT @ wl,
+        "Jwb": ca.horzcat(RlRz.T @ base["Jwb"], RzT @ Jwl),
+        "wbd": RldRz.T @ base["wb"] + RlRz.T @ base["wbd"] + RzT @ wld,
+        "Jwbd": ca.horzcat(RldRz.T @ base["Jwb"] + RlRz.T @ base["Jwbd"], RzT @ Jwld),
     }
     ins = [ql, qdl] + ([base[f] for f in BASE_FIELDS] if k else [])
     names = ["qi", "qdi"] + (list(BASE_FIELDS) if k else [])
-    outs = jet.finalize([ca.densify(out[f]) for f in BASE_FIELDS])
-    return ca.Function(name, ins, outs, names,
-                       [f + "_next" for f in BASE_FIELDS], {"cse": True})
+    outs = jet.finalize([ca.densify(out[f]) for f in fields])
+    return ca.Function(name, ins, outs, names, [f + "_next" for f in fields], {"cse": True})
