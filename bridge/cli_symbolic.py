@@ -274,7 +274,13 @@ def cmd_derive(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from symbolic.datasets import data_config, make_dataset, resample, write_dataset
+    from symbolic.datasets import (
+        data_config,
+        make_dataset,
+        plan_dataset,
+        resample,
+        write_dataset,
+    )
     from symbolic.spec import load_spec
 
     spec = load_spec(args.model)
@@ -310,34 +316,41 @@ def cmd_simulate(args) -> int:
             if path.exists():
                 raise UserError(f"--out {path}: file exists (use --force to overwrite)")
 
-    total = args.trajectories or cfg.total_trajectories(integrator)
+    plan = plan_dataset(
+        spec,
+        trajectories=args.trajectories,
+        duration=args.duration,
+        rate=args.rate,
+        dt=args.dt,
+        integrator=integrator,
+        signal=args.signal,
+        seed=args.seed,
+        noise=args.noise,
+        rtol=args.rtol,
+        atol=args.atol,
+        threads=args.threads,
+    )
     bar = None
     if not args.quiet:
         from tqdm import tqdm
 
-        bar = tqdm(total=total, desc=f"simulate {spec.name}", unit="traj", file=sys.stderr)
+        bar = tqdm(
+            total=plan.trajectories, desc=f"simulate {spec.name}", unit="traj", file=sys.stderr
+        )
+    failed = True
     try:
         t0 = time.perf_counter()
         data = make_dataset(
-            spec,
-            trajectories=args.trajectories,
-            duration=args.duration,
-            rate=args.rate,
-            dt=args.dt,
-            integrator=integrator,
-            signal=args.signal,
-            seed=args.seed,
-            noise=args.noise,
-            rtol=args.rtol,
-            atol=args.atol,
-            threads=args.threads,
+            plan=plan,
             compile=not args.no_compile,
             cache=args.cache,
             progress=bar.update if bar is not None else None,
         )
         seconds = time.perf_counter() - t0
+        failed = False
     finally:
         if bar is not None:
+            bar.leave = not failed  # an error leaves one clean line on stderr
             bar.close()
     write_dataset(out, data, force=args.force)
     k, per = data.meta["trajectories"], data.meta["samples_per_trajectory"]

@@ -297,7 +297,20 @@ def paper_splits(cfg: DataConfig, total: int, integrator: str) -> dict[str, list
     return {"train": pool[:ntr], "test": ids[total - ntest :], "blackbox_train": pool[:nbb]}
 
 
-def make_dataset(
+@dataclass(frozen=True)
+class DatasetPlan:
+    """A validated request for a data set: everything :func:`make_dataset` will do."""
+
+    spec: ModelSpec
+    data: DataConfig
+    sim: SimulationConfig
+    trajectories: int
+    seed: int
+    noise: float
+    signal: str
+
+
+def plan_dataset(
     model: str | Path | ModelSpec,
     *,
     trajectories: int | None = None,
@@ -313,17 +326,11 @@ def make_dataset(
     threads: int = 2,
     max_condition: float | None = 1e12,
     data: Mapping[str, Any] | None = None,
-    fns: Mapping | None = None,
-    compile: bool = True,
-    cache: str | os.PathLike | None = None,
-    progress: Callable[[int], None] | None = None,
-) -> DatasetArrays:
-    """Simulate a model's data set; every argument left None comes from the spec's ``[data]``.
+) -> DatasetPlan:
+    """Validate a data-set request; every argument left None comes from the spec's ``[data]``.
 
     ``rate`` defaults to the highest of ``[data]``'s rates (cvodes) or ``fixed_step_rate`` / 1 /
-    ``fixed_step_dt`` (rk4); ``dt`` (rk4 step) to ``fixed_step_dt`` or 1 / rate. ``fns``
-    overrides the model's functions (else :func:`symbolic.functions.functions`, compiled to C
-    with :func:`symbolic.codegen.compiled` when ``compile``).
+    ``fixed_step_dt`` (rk4); ``dt`` (rk4 step) to ``fixed_step_dt`` or 1 / rate.
     """
     spec = load_spec(model)
     cfg = data_config(spec, data)
@@ -358,6 +365,36 @@ def make_dataset(
     kind = signal or cfg.signal
     if kind not in SIGNAL_KINDS:
         raise DataError(f"signal: expected one of {', '.join(SIGNAL_KINDS)}, got {kind!r}")
+    return DatasetPlan(
+        spec=spec, data=cfg, sim=sim, trajectories=total, seed=seed, noise=noise, signal=kind
+    )
+
+
+def make_dataset(
+    model: str | Path | ModelSpec | None = None,
+    *,
+    plan: DatasetPlan | None = None,
+    fns: Mapping | None = None,
+    compile: bool = True,
+    cache: str | os.PathLike | None = None,
+    progress: Callable[[int], None] | None = None,
+    **options,
+) -> DatasetArrays:
+    """Simulate a model's data set (Section III-B) and return its arrays and meta.
+
+    Either ``plan`` (from :func:`plan_dataset`) or ``model`` with the keyword ``options`` of
+    :func:`plan_dataset`. ``fns`` overrides the model's functions (else
+    :func:`symbolic.functions.functions`, compiled to C with :func:`symbolic.codegen.compiled`
+    when ``compile``; ``cache`` is the compiled-code cache directory). ``progress`` is called
+    with the number of trajectories finished.
+    """
+    if plan is None:
+        plan = plan_dataset(model, **options)
+    elif model is not None or options:
+        raise TypeError("make_dataset: give either a plan or a model with options")
+    spec, cfg, sim = plan.spec, plan.data, plan.sim
+    total, seed, noise, kind = plan.trajectories, plan.seed, plan.noise, plan.signal
+    integ = sim.integrator
     timings: dict[str, float] = {}
     if fns is None:
         t0 = time.perf_counter()

@@ -26,6 +26,10 @@ The output grid is t_k = k / rate, k = 0 .. round(duration * rate) - 1 (so 10 s 
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
+import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
@@ -192,6 +196,7 @@ def cvodes_integrator(
         "max_num_steps": config.max_num_steps,
         "error_on_fail": True,
         "disable_internal_warnings": True,
+        "show_eval_warnings": False,
     }
     return ca.integrator(name, "cvodes", _dae(ode, signal, nx), 0.0, list(grid), opts)
 
@@ -281,7 +286,8 @@ def simulate(
             if config.integrator == "cvodes":
                 p = np.vstack([np.zeros((1, len(ids))), p])
             try:
-                out = fm(x0=x0[ids].T, p=p)["xf"]
+                with _quiet_stderr():
+                    out = fm(x0=x0[ids].T, p=p)["xf"]
             except RuntimeError as exc:
                 for i in ids:
                     _locate_failure(ode, signals[i], nx, x0[i], t, config, i)
@@ -402,6 +408,25 @@ def _check_finite(arr: np.ndarray, t: np.ndarray, k: int, n: int, what: str = "s
         )
 
 
+@contextlib.contextmanager
+def _quiet_stderr():
+    """Capture what C code (SUNDIALS) prints on file descriptor 2 during the block; yields a
+    list that receives the captured lines (the CLI's errors stay one line)."""
+    lines: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile(mode="w+b") as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            text = tmp.read().decode(errors="replace")
+            lines.extend(line.strip() for line in text.splitlines() if line.strip())
+
+
 def _locate_failure(ode, signal, nx, x0, t, config, k):
     """Integrate one output interval at a time to name where cvodes failed.
 
@@ -414,11 +439,13 @@ def _locate_failure(ode, signal, nx, x0, t, config, k):
     params = signal.params()
     for j in range(len(t) - 1):
         try:
-            xn = np.asarray(f(x0=x, p=np.concatenate([[t[j]], params]))["xf"])[:, -1]
-        except RuntimeError:
+            with _quiet_stderr() as said:
+                xn = np.asarray(f(x0=x, p=np.concatenate([[t[j]], params]))["xf"])[:, -1]
+        except RuntimeError as exc:
+            why = " ".join(said) or str(exc).strip().splitlines()[-1]
             raise SingularityError(
-                f"trajectory {k}: cvodes failed between t = {t[j]:.6g} s and {t[j + 1]:.6g} s, "
-                f"starting from {_fmt(x, n)}; the model is singular or stiff there "
+                f"trajectory {k}: cvodes failed between t = {t[j]:.6g} s and {t[j + 1]:.6g} s "
+                f"({why}), starting from {_fmt(x, n)}; the model is singular or stiff there "
                 '(phi-theta at theta = 0?): use parameterization = "delta" or other tolerances'
             ) from None
         if not np.all(np.isfinite(xn)):
