@@ -55,3 +55,33 @@ def test_derivative_matches_closed_form_away_from_zero():
 
 def test_numeric_arguments():
     assert float(sinc(0.0)) == 1.0 and float(cosc(4.0)) == pytest.approx((1 - math.cos(2)) / 4)
+
+
+def test_jet_values_and_derivatives_match_high_precision():
+    """The jet's closed forms and series (cosc, sinc and two s-derivatives) against mpmath."""
+    import mpmath
+
+    from symbolic.smooth import JET_SWITCH, Jet
+
+    jet = Jet()
+    s = ca.SX.sym("s")
+    f = ca.Function("jet", [s], [jet.values(s)])
+
+    def exact(sv):
+        with mpmath.workdps(40):
+            sv = mpmath.mpf(sv)
+            c1 = lambda t: (1 - mpmath.cos(mpmath.sqrt(t))) / t if t else mpmath.mpf(1) / 2
+            c2 = lambda t: mpmath.sin(mpmath.sqrt(t)) / mpmath.sqrt(t) if t else mpmath.mpf(1)
+            out = []
+            for fn in (c1, c2):
+                out += [fn(sv), mpmath.diff(fn, sv, 1) if sv else None,
+                        mpmath.diff(fn, sv, 2) if sv else None]
+            return out
+
+    for sv in (1e-6, 0.05, np.nextafter(JET_SWITCH, 0), JET_SWITCH, 0.5, 4.0, 39.0):
+        got = np.array(f(sv)).ravel()
+        want = np.array([float(x) for x in exact(sv)])
+        got = got[[0, 1, 2, 3, 4, 5]]
+        np.testing.assert_allclose(got, want, rtol=1e-11, atol=1e-15, err_msg=str(sv))
+    at0 = np.array(f(0.0)).ravel()
+    np.testing.assert_allclose(at0, [1 / 2, -1 / 24, 2 / 720, 1, -1 / 6, 2 / 120], rtol=1e-15)
