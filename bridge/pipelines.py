@@ -429,70 +429,82 @@ def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progres
 
 
 def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Path) -> dict:
-    from learn.data import load_dataset
-    from learn.predict import evaluate
+    """Train and test one-step errors, rollouts over the horizon and a long horizon (one
+    rollout: the first part is the horizon's), and rollouts with another step size."""
+    import jax.numpy as jnp
+
+    from learn.data import load_dataset, make_pairs, trajectories
+    from learn.losses import Pairs
+    from learn.predict import evaluate, one_step_errors, rollouts
     from learn.train import load_ensemble
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
-    members = load_ensemble(trained["run"])
     data = load_dataset(f["path"])
     test = f["test"]
     per_seed = []
-    for run in members:
-        tc = run.train_config
-        kw = dict(loss_weight=tc.loss_weight, substeps=tc.substeps, input_hold=tc.input_hold)
-        main = evaluate(run.model, data, test, horizon=plan.horizon, **kw)
-        long = evaluate(run.model, data, test, horizon=plan.long_horizon, **kw)
-        other = evaluate(run.model, data, test, horizon=plan.horizon, dt=plan.other_dt, **kw)
-        train_err = evaluate(run.model, data, f["train"][:4], horizon=plan.horizon, **kw)
-        per_seed.append((run.seed, main, long, other, train_err))
-    seed, main, long, other, _ = per_seed[0]
-    np.savez(folder / "rollouts.npz", **_rollout_arrays("main", main),
-             **_rollout_arrays("long", long), **_rollout_arrays("other", other))
+    for run in load_ensemble(trained["run"]):
+        tc, cfg = run.train_config, run.model_config
+        kw = dict(substeps=tc.substeps, input_hold=tc.input_hold)
+        long = evaluate(run.model, data, test, horizon=plan.long_horizon,
+                        loss_weight=tc.loss_weight, **kw)
+        main = [_truncated_error(r, plan.horizon) for r in long.rollouts]
+        other = rollouts(run.model, trajectories(data, test, state=cfg.state_kind),
+                         horizon=plan.horizon, dt=plan.other_dt, **kw)
+        pnp = make_pairs(data, f["train"], state=cfg.state_kind,
+                         samples=min(20000, f["samples"]), seed=0)
+        dtype = jnp.dtype(cfg.dtype)
+        pairs = Pairs(*(jnp.asarray(a, dtype) for a in pnp[:5]), None)
+        train_err = one_step_errors(run.model, pairs, weight=tc.loss_weight, **kw)
+        per_seed.append({"seed": run.seed, "long": long, "main": np.asarray(main),
+                         "other": np.asarray([r["error"] for r in other]),
+                         "train": train_err, "other_rollouts": other})
+    first = per_seed[0]
+    arrays = {}
+    for prefix, r in (("long", first["long"].rollouts[0]), ("other", first["other_rollouts"][0])):
+        arrays.update({f"{prefix}_t": r["t"], f"{prefix}_q_true": r["q_true"],
+                       f"{prefix}_q_pred": r["q_pred"]})
+    r = first["long"].rollouts[0]
+    keep = r["t"] - r["t"][0] <= plan.horizon * (1 + 1e-12) + 1e-12
+    arrays.update({"main_t": r["t"][keep], "main_q_true": r["q_true"][keep],
+                   "main_q_pred": r["q_pred"][keep]})
+    np.savez(folder / "rollouts.npz", **arrays)
 
-    def agg(values):
-        v = np.asarray(values, float)
-        return {"mean": float(np.mean(v)), "std": float(np.std(v)) if len(v) > 1 else None}
+    def stat(key, pick=lambda x: x):
+        vals = [pick(p[key]) for p in per_seed]
+        means = [float(np.mean(v)) for v in vals]
+        stds = [float(np.std(v)) for v in vals]
+        out = {"mean": float(np.mean(means)), "std": float(np.mean(stds))}
+        if len(per_seed) > 1:
+            out["seeds"] = {"mean": float(np.mean(means)), "std": float(np.std(means))}
+        return out
 
-    def mean_std_over(results, attr):
-        # per-seed figure; across seeds mean ± std of the per-seed means
-        return [getattr(r, attr) for r in results]
-
-    mains = [p[1] for p in per_seed]
-    trains = [p[4] for p in per_seed]
-    out = {
-        "test_error": _pooled([r.one_step_error for r in mains]),
-        "train_error": _pooled([r.one_step_error for r in trains]),
-        "prediction_error": {
-            "mean": float(np.mean([r.rollout_error_mean for r in mains])),
-            "std": float(np.mean([r.rollout_error_std for r in mains])),
-            "horizon_s": plan.horizon,
-            "seeds": agg(mean_std_over(mains, "rollout_error_mean")),
+    test_err = stat("long", lambda res: np.asarray([res.one_step_error["mean"]]))
+    test_err["std"] = float(np.mean([p["long"].one_step_error["std"] for p in per_seed]))
+    return {
+        "train_error": stat("train"),
+        "test_error": test_err,
+        "prediction_error": {**stat("main"), "horizon_s": plan.horizon},
+        "long_prediction_error": {
+            **stat("long", lambda res: np.asarray(res.rollout_errors)),
+            "horizon_s": plan.long_horizon,
         },
-        "long_prediction_error": {"mean": long.rollout_error_mean,
-                                  "std": long.rollout_error_std,
-                                  "horizon_s": plan.long_horizon},
-        "other_dt_prediction_error": {"mean": other.rollout_error_mean,
-                                      "std": other.rollout_error_std, "dt": plan.other_dt,
+        "other_dt_prediction_error": {**stat("other"), "dt": plan.other_dt,
                                       "horizon_s": plan.horizon},
-        "rollout_errors": main.rollout_errors,
-        "trajectories": main.trajectories,
-        "seeds": [p[0] for p in per_seed],
+        "rollout_errors": first["main"].tolist(),
+        "trajectories": list(map(int, test)),
+        "seeds": [p["seed"] for p in per_seed],
     }
-    return out
 
 
-def _pooled(entries: list[dict]) -> dict:
-    means = [e["mean"] for e in entries]
-    stds = [e["std"] for e in entries]
-    return {"mean": float(np.mean(means)), "std": float(np.mean(stds)),
-            "pairs": int(entries[0]["pairs"])}
-
-
-def _rollout_arrays(prefix: str, res) -> dict[str, np.ndarray]:
-    r = res.rollouts[0]
-    return {f"{prefix}_t": r["t"], f"{prefix}_q_true": r["q_true"],
-            f"{prefix}_q_pred": r["q_pred"], f"{prefix}_id": np.array(r["id"])}
+def _truncated_error(rollout: dict, horizon: float) -> float:
+    """The rollout error (mean over samples after t0 of ||q - q_hat||^2) over the first
+    ``horizon`` seconds of a longer rollout."""
+    t = rollout["t"]
+    keep = t - t[0] <= horizon * (1 + 1e-12) + 1e-12
+    d = rollout["q_pred"][keep][1:] - rollout["q_true"][keep][1:]
+    with np.errstate(over="ignore", invalid="ignore"):
+        err = float(np.mean(np.sum(d * d, axis=1)))
+    return err if math.isfinite(err) else float("inf")
 
 
 # --------------------------------------------------------------------------------- analysis

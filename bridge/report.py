@@ -282,3 +282,20 @@ def _rate_figure(plan, results: dict, fig_dir: Path, out: Path) -> list[str]:
     plt.close(fig)
     return ["## Prediction error against sampling rate (Fig. 10)", "",
             f"![error against sampling rate]({_rel(path, out)})", ""]
+
+
+def show_report(out_dir: str | Path) -> None:
+    """Show a task run's report in a notebook: the Markdown (tables) and every figure."""
+    import re
+
+    from IPython.display import Image, Markdown, display
+
+    out = Path(out_dir)
+    text = (out / "report.md").read_text()
+    parts = re.split(r"!\[([^\]]*)\]\(([^)]+)\)", text)
+    # re.split with two groups gives [text, alt, path, text, alt, path, ..., text]
+    for i in range(0, len(parts), 3):
+        if parts[i].strip():
+            display(Markdown(parts[i]))
+        if i + 2 < len(parts):
+            display(Image(filename=str(out / parts[i + 2])))

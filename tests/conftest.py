@@ -24,3 +24,21 @@ def getkey():
         return sub
 
     return _getkey
+
+
+@pytest.fixture(scope="session")
+def quick_runs(tmp_path_factory):
+    """``get(task)`` runs ``reproduce(task, quick=True)`` once per session into a shared folder
+    (``get.root``), so the pipeline tests and the notebooks reuse the same runs."""
+    root = tmp_path_factory.mktemp("quick-runs")
+    cache = {}
+
+    def get(task):
+        if task not in cache:
+            from bridge.pipelines import ReproduceConfig, reproduce
+
+            cache[task] = reproduce(ReproduceConfig(task, quick=True), root / f"{task}-quick")
+        return cache[task]
+
+    get.root = root
+    return get

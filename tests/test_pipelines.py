@@ -1,0 +1,129 @@
+"""The five paper tasks end to end on quick settings, and the reproduce/analyze CLI."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from bridge.cli import main
+from bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce
+from symbolic.spec import load_spec
+
+pytestmark = pytest.mark.timeout(900)
+
+EXPECTED_MODELS = {
+    "task1": {"main": {"lagrangian", "blackbox"}},
+    "task2": {"main": {"lagrangian", "blackbox"}},
+    "task3": {"main": {"hamiltonian", "blackbox"}},
+    "task4": {"main": {"lagrangian", "hamiltonian", "blackbox"}},
+    "task5": {
+        "fixed_0.0002s": {"lagrangian", "blackbox"},
+        "50Hz": {"lagrangian"},
+        "100Hz": {"lagrangian", "blackbox"},
+    },
+}
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
+    result = quick_runs(task)
+    out = result.out_dir
+    text = result.report.read_text()
+    assert "Table III" in text and "| paper |" in text and "| ours |" in text
+    variants = result.results["variants"]
+    assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
+    for vname, vres in variants.items():
+        for kind, entry in vres["models"].items():
+            pr = entry["predict"]
+            for key in ("train_error", "test_error", "prediction_error"):
+                assert math.isfinite(pr[key]["mean"]), (vname, kind, key)
+            assert (out / "train" / vname / kind / "done.json").is_file()
+            if kind != "blackbox":
+                summary = entry["analyze"]["summary"]
+                assert "pointwise" in summary
+                # the pointwise P(q) = M M̂^-1 explains M exactly, by construction
+                if kind == "lagrangian":
+                    assert summary["pointwise"]["residual"]["M"] < 1e-8
+                else:
+                    assert "direct" in summary
+                assert (out / "analyze" / vname / kind / "report.md").is_file()
+    assert list((out / "tables").glob("table_iii_*.csv"))
+    figures = {p.name for p in (out / "figures").glob("*.png")}
+    assert any(f.startswith("loss_") for f in figures)
+    assert any(f.startswith("rollout_main_") for f in figures)
+    assert any(f.startswith("rollout_other_") for f in figures)
+    if task == "task5":
+        assert "error_vs_rate.png" in figures
+    for link in __import__("re").findall(r"\]\(([^)]+\.(?:png|md))\)", text):
+        assert (out / link).is_file(), link
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["task"] == task and saved["quick"] is True
+
+
+def test_second_call_skips_finished_stages(quick_runs):
+    first = quick_runs("task1")
+    done = sorted(first.out_dir.glob("**/done.json"))
+    stamps = [p.stat().st_mtime_ns for p in done]
+    lines = []
+    again = reproduce(ReproduceConfig("task1", quick=True), first.out_dir, log=lines.append)
+    assert [p.stat().st_mtime_ns for p in done] == stamps
+    assert sum("skipped" in line for line in lines) == len(done)
+    a = first.results["variants"]["main"]["models"]["lagrangian"]["predict"]
+    b = again.results["variants"]["main"]["models"]["lagrangian"]["predict"]
+    assert a == b
+
+
+def test_plans_follow_the_paper():
+    full = {t: make_plan(load_spec(t), ReproduceConfig(t)) for t in TASKS}
+    assert full["task1"].horizon == 2.7 and full["task3"].horizon == 5.0
+    assert full["task5"].horizon == 10.0
+    assert [v.name for v in full["task5"].variants] == [
+        "fixed_0.0002s", "50Hz", "100Hz", "1000Hz"]
+    assert full["task4"].models["lagrangian"]["mass"] == (30, 3)
+    assert full["task4"].physics_samples == 8000
+    assert full["task1"].other_dt == 0.1 and full["task2"].other_dt == 0.15
+    quick = make_plan(load_spec("task2"), ReproduceConfig("task2", quick=True, epochs=7))
+    assert quick.models["lagrangian"]["epochs"] == 7 and quick.data["duration"] < 10
+
+
+def _err(capsys):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("softpinn: error: "), err
+    return err[0]
+
+
+def test_reproduce_unknown_task_is_one_line_error(tmp_path, capsys):
+    assert main(["reproduce", "task9", "--quick", "--out", str(tmp_path / "x")]) == 2
+    assert "task9" in _err(capsys)
+    assert main(["reproduce", "task1", "--seeds", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "--seeds" in _err(capsys)
+
+
+def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
+    result = quick_runs("task1")
+    run = result.out_dir / "train" / "main" / "lagrangian" / "run"
+    out = tmp_path / "an"
+    assert main(["analyze", str(run), "task1", "--q", "0.5", "0.5", "0", "0", "0", "-0.8",
+                 "--transform", "alpha", "pointwise", "--out", str(out), "--json"]) == 0
+    payload = json.loads(capsys.readouterr().out)
+    assert np.asarray(payload["q"]).shape == (3, 2)
+    assert set(payload["transforms"]) == {"alpha", "pointwise"}
+    assert (out / "report.md").is_file()
+    # a run of another model size
+    assert main(["analyze", str(run), "task4", "--out", str(tmp_path / "b")]) == 2
+    assert "n=2" in _err(capsys)
+    # an unknown transform
+    assert main(["analyze", str(run), "task1", "--transform", "magic", "--out",
+                 str(tmp_path / "c")]) == 2
+    assert "magic" in _err(capsys)
+    # a q of the wrong length
+    assert main(["analyze", str(run), "task1", "--q", "0.1", "0.2", "0.3", "--out",
+                 str(tmp_path / "d")]) == 2
+    assert "multiple of n = 2" in _err(capsys)
+    # a black-box run has no matrices
+    bb = result.out_dir / "train" / "main" / "blackbox" / "run"
+    assert main(["analyze", str(bb), "task1", "--out", str(tmp_path / "e")]) == 2
+    assert "black-box" in _err(capsys)
