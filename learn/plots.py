@@ -83,9 +83,11 @@ def plot_rollout(
     axes[0, 0].legend(fontsize=8)
     axes[0, 0].set_title(title)
     ax = axes[n, 0]
-    err = np.maximum(np.abs(q_pred - q_true), 1e-300)
+    # the error is zero at t0 (the true initial state): plot from the first step on
+    err = np.maximum(np.abs(q_pred - q_true)[1:], 1e-300)
     for i in range(n):
-        ax.plot(t, err[:, i], lw=1.0, label=f"|e{i + 1}|")
+        ax.plot(t[1:], err[:, i], lw=1.0, label=f"|e{i + 1}|")
+    ax.legend(fontsize=8)
     ax.set_yscale("log")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("abs. error")

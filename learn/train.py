@@ -35,7 +35,7 @@ import optax
 from . import checkpoint as ckpt
 from .data import Dataset, PairData, load_dataset, make_pairs, split_trajectories
 from .errors import UserError
-from .losses import Pairs, accel_loss, pair_loss
+from .losses import Pairs, accel_errors, accel_loss, pair_errors, pair_loss
 from .models import ModelConfig, make_model
 
 FORMAT = "softpinn-run"
@@ -209,6 +209,34 @@ def loss_function(config: TrainConfig) -> Callable:
     )
 
 
+def errors_function(config: TrainConfig) -> Callable:
+    """``errors(model, pairs) -> (B,)``: the per-pair terms whose mean is the loss."""
+    if config.loss == "accel":
+        return lambda model, pairs: accel_errors(model, pairs)
+    return lambda model, pairs: pair_errors(
+        model,
+        pairs,
+        weight=config.loss_weight,
+        substeps=config.substeps,
+        input_hold=config.input_hold,
+    )
+
+
+def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
+    """Split ``pairs`` into chunks of exactly ``size`` (the last padded with copies of the
+    first pairs, weight 0), so that one compiled evaluation serves every set."""
+    n = pairs.x0.shape[0]
+    pad = (-n) % size
+    idx = np.concatenate([np.arange(n), np.arange(pad) % n])
+    w = np.concatenate([np.ones(n), np.zeros(pad)])
+    chunks, weights = [], []
+    for c in range((n + pad) // size):
+        sl = idx[c * size : (c + 1) * size]
+        chunks.append(jax.tree.map(lambda a, sl=sl: a[sl], pairs))
+        weights.append(jnp.asarray(w[c * size : (c + 1) * size], pairs.x0.dtype))
+    return chunks, weights
+
+
 def make_optimizer(config: TrainConfig, steps_per_epoch: int) -> optax.GradientTransformation:
     """AdamW with the configured warmup + decay schedule over ``epochs * steps_per_epoch``."""
     total = max(1, config.epochs * steps_per_epoch)
@@ -311,7 +339,14 @@ class _Programs:
             return _select(active, new_p, params), _select(active, new_s, opt_state), loss
 
         self._epoch_fn = epoch_fn
-        self._eval_fn = jax.jit(jax.vmap(loss_params, in_axes=(0, None)))
+        errors_of = errors_function(config)
+
+        def weighted_sum(params, chunk, w):
+            return jnp.sum(w * errors_of(eqx.combine(params, static), chunk))
+
+        self._eval_chunk = jax.jit(jax.vmap(weighted_sum, in_axes=(0, None, None)))
+        self.eval_size = max(batch, 256)
+        self._set_eval_data(train, test)
         self.init_opt = jax.jit(jax.vmap(self.opt.init))
 
         # L-BFGS on the full training set (optax.lbfgs with its zoom line search).
@@ -345,16 +380,28 @@ class _Programs:
         new = object.__new__(_Programs)
         new.__dict__.update(self.__dict__)
         new.config, new.train, new.test = config, train, test
+        new._set_eval_data(train, test)
         return new
 
     def epoch_fn(self, params, opt_state, keys, epoch, active):
         return self._epoch_fn(params, opt_state, keys, epoch, active, self.train)
 
+    def _set_eval_data(self, train, test):
+        self._train_chunks = _chunked(train, self.eval_size)
+        self._test_chunks = _chunked(test, self.eval_size)
+        self._n_eval = (train.x0.shape[0], test.x0.shape[0])
+
+    def _evaluate(self, params, chunks, count):
+        total = sum(self._eval_chunk(params, c, w) for c, w in zip(*chunks, strict=True))
+        return total / count
+
     def eval_fn(self, params):
-        return self._eval_fn(params, self.test)
+        """Mean loss of every member on the test pairs, (K,)."""
+        return self._evaluate(params, self._test_chunks, self._n_eval[1])
 
     def eval_train_fn(self, params):
-        return self._eval_fn(params, self.train)
+        """Mean loss of every member on all training pairs, (K,)."""
+        return self._evaluate(params, self._train_chunks, self._n_eval[0])
 
     def lbfgs_fn(self, params, state, active):
         return self._lbfgs_fn(params, state, active, self.train)
@@ -918,3 +965,4 @@ def load_ensemble(run_dir: str | Path) -> list[LoadedRun]:
     if "members" not in info:
         return [load_run(run_dir)]
     return [load_run(run_dir, member=s) for s in info["seeds"]]
+

@@ -128,3 +128,28 @@ def make_dataset(path: str | Path, system: str = "msd", **kw) -> Path:
         "version": "test",
     }
     return write(path, arrays, meta)
+
+
+def tiny_model_config(kind: str, n: int = 2, m: int = 1, **kw):
+    """Small networks for CI-sized training (imports learn lazily: datagen stays numpy-only)."""
+    from learn.models import ModelConfig
+
+    sizes = dict(mass=(16, 1), potential=(16, 1), damping=(8, 1), input=(8, 1), hidden=(16, 2))
+    sizes.update(kw)
+    return ModelConfig(kind=kind, n=n, m=m, **sizes)
+
+
+def blackbox_train_config(**kw):
+    """The one black-box TrainConfig the quick tests share, so its program compiles once."""
+    from learn.train import TrainConfig
+
+    base = dict(
+        model=tiny_model_config("blackbox"),
+        epochs=12,
+        batch_size=64,
+        lr=1e-2,
+        test_trajectories=(4,),
+        checkpoint_every=1000,
+    )
+    base.update(kw)
+    return TrainConfig(**base)

@@ -1,0 +1,337 @@
+"""``softpinn train`` and ``softpinn predict``: flags mapped onto :func:`learn.train.train` and
+:func:`learn.predict.predict`; the progress bar is drawn from the training callback."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+MODEL_KINDS = ("lagrangian", "hamiltonian", "blackbox", "lagrangian-hessian")
+NETS = ("mass", "potential", "damping", "input", "hidden")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "train",
+        help="train a physics-inspired (or black-box) model on a dataset file",
+        description=(
+            "Train Lagrangian (eq. 6), Hamiltonian (eq. 7) or black-box networks with the "
+            "one-step Runge-Kutta loss (eqs. 8/9) or the acceleration loss (eq. 10), AdamW. "
+            "Writes RUN/config.json, model.eqx, checkpoint.eqx, history.csv, metrics.json, "
+            "loss.png (one seed-<s>/ folder per member of an ensemble)."
+        ),
+    )
+    p.add_argument("data", metavar="DATA.npz", help="dataset file")
+    p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
+    p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
+    p.add_argument("--epochs", type=int, default=1000)
+    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--lr", type=float, default=1e-3, help="peak learning rate (default 1e-3)")
+    p.add_argument("--schedule", choices=("cosine", "exponential", "constant"), default="cosine")
+    p.add_argument("--warmup", type=float, default=0.02, help="warmup fraction of all steps")
+    p.add_argument("--lr-final", type=float, default=0.01, help="final lr as a fraction of --lr")
+    p.add_argument("--weight-decay", type=float, default=1e-4)
+    p.add_argument("--clip-norm", type=float, default=0.0, help="global gradient-norm clip")
+    p.add_argument(
+        "--loss",
+        choices=("pair", "accel"),
+        default="pair",
+        help="pair: one RK4 step per pair, eq. 8/9; accel: eq. 10",
+    )
+    p.add_argument("--loss-weight", type=float, default=1.0, help="lambda of eqs. 8/9")
+    p.add_argument("--substeps", type=int, default=1, help="RK4 sub-steps per pair")
+    p.add_argument("--input-hold", choices=("constant", "linear"), default="constant")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", type=int, default=1, help="ensemble size K (seeds S..S+K-1)")
+    p.add_argument("--ensemble", choices=("auto", "vmap", "sequential"), default="auto")
+    p.add_argument(
+        "--test-trajectories",
+        type=int,
+        nargs="+",
+        default=None,
+        metavar="ID",
+        help="trajectory ids held out for testing (default: 20%% drawn at random)",
+    )
+    p.add_argument(
+        "--test-count",
+        type=int,
+        default=None,
+        metavar="K",
+        help="hold out K trajectories drawn at random",
+    )
+    p.add_argument("--split-seed", type=int, default=0)
+    p.add_argument(
+        "--samples", type=int, default=None, help="train on N randomly chosen pairs (default: all)"
+    )
+    p.add_argument("--width", type=int, default=None, help="width of every sub-network")
+    p.add_argument("--depth", type=int, default=None, help="hidden layers of every sub-network")
+    for net in NETS:
+        p.add_argument(
+            f"--{net}",
+            type=int,
+            nargs=2,
+            metavar=("W", "D"),
+            default=None,
+            help=f"width and depth of the {net} network",
+        )
+    p.add_argument("--activation", default="softplus")
+    p.add_argument("--damping-form", choices=("network", "constant", "none"), default="network")
+    p.add_argument("--input-form", choices=("network", "constant"), default="network")
+    p.add_argument("--eps", type=float, default=1e-3, help="Cholesky diagonal shift of M")
+    p.add_argument(
+        "--state",
+        choices=("velocity", "momentum"),
+        default=None,
+        help="state of a black-box model (default velocity)",
+    )
+    p.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
+    p.add_argument("--patience", type=int, default=None, help="early-stopping patience")
+    p.add_argument("--eval-every", type=int, default=1)
+    p.add_argument("--checkpoint-every", type=int, default=25)
+    p.add_argument("--lbfgs-steps", type=int, default=0, help="L-BFGS finish iterations")
+    p.add_argument(
+        "--resume", action="store_true", help="continue the run in --out with its stored options"
+    )
+    p.add_argument("--force", action="store_true", help="overwrite an existing run directory")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    p.set_defaults(func=cmd_train)
+
+    q = subparsers.add_parser(
+        "predict",
+        help="one-step and rollout errors of a trained model",
+        description=(
+            "One-step test error (eq. 8/9 per pair, mean ± std) and rollouts from the true "
+            "initial state with the true inputs over --horizon seconds (mean squared error of q "
+            "per trajectory, mean ± std over trajectories)."
+        ),
+    )
+    q.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
+    q.add_argument("data", metavar="DATA.npz", help="dataset file")
+    q.add_argument("--horizon", type=float, required=True, metavar="S")
+    q.add_argument(
+        "--reset-every",
+        type=float,
+        default=None,
+        metavar="S",
+        help="re-set the state to the truth every S seconds",
+    )
+    q.add_argument(
+        "--dt",
+        type=float,
+        default=None,
+        metavar="S",
+        help="integrate with this step instead of the data's",
+    )
+    q.add_argument(
+        "--trajectories",
+        nargs="+",
+        default=["auto"],
+        metavar="ID",
+        help="'test' (the run's held-out ones), 'all', or ids (default: test if "
+        "DATA is the training file, else all)",
+    )
+    q.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
+    q.add_argument("--json", action="store_true", help="print one JSON object")
+    q.add_argument("--plot", default=None, metavar="FILE", help="PNG of predicted vs true q")
+    q.set_defaults(func=cmd_predict)
+
+
+def _enable_x64():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def _model_config(args, n: int, m: int):
+    from learn.errors import UserError
+    from learn.models import ModelConfig
+
+    if args.model is None:
+        raise UserError(f"--model is required: one of {', '.join(MODEL_KINDS)}")
+    kw = {}
+    defaults = ModelConfig(kind=args.model, n=n, m=m)
+    for net in NETS:
+        w, d = getattr(defaults, net)
+        if args.width is not None:
+            w = args.width
+        if args.depth is not None:
+            d = args.depth
+        if getattr(args, net) is not None:
+            w, d = getattr(args, net)
+        kw[net] = (w, d)
+    if args.state is not None:
+        kw["state_kind"] = args.state
+    return ModelConfig(
+        kind=args.model,
+        n=n,
+        m=m,
+        activation=args.activation,
+        damping_form=args.damping_form,
+        input_form=args.input_form,
+        eps=args.eps,
+        dtype="float32" if args.float32 else "float64",
+        **kw,
+    )
+
+
+class _Bar:
+    """tqdm progress bar (stderr) driven by the training callback."""
+
+    def __init__(self, total: int, disable: bool):
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(
+            total=total, file=sys.stderr, disable=disable, unit="epoch", dynamic_ncols=True
+        )
+        self.last = {}
+
+    def __call__(self, info: dict):
+        key = info["label"]
+        prev = self.last.get(key, 0)
+        if info["phase"] == "adamw":
+            self.bar.update(max(0, info["epoch"] - prev))
+            self.last[key] = info["epoch"]
+        te = info["test_loss"]
+        post = {"seed": key, "train": f"{min(info['train_loss']):.3e}"}
+        if te is not None:
+            post["test"] = f"{min(te):.3e}"
+        if info["phase"] != "adamw":
+            post["phase"] = info["phase"]
+        self.bar.set_postfix(post, refresh=False)
+
+    def close(self):
+        self.bar.close()
+
+
+def cmd_train(args) -> int:
+    _enable_x64()
+    from learn.checkpoint import read_json
+    from learn.data import load_dataset
+    from learn.errors import UserError
+    from learn.train import TrainConfig, train
+
+    if args.resume and args.force:
+        raise UserError("--resume and --force exclude each other")
+    if args.test_trajectories is not None and args.test_count is not None:
+        raise UserError("give --test-trajectories or --test-count, not both")
+    if args.resume:
+        from pathlib import Path
+
+        stored = read_json(Path(args.out) / "config.json")
+        config = TrainConfig.from_dict(stored["train"])
+        data = load_dataset(args.data, n=config.model.n, m=config.model.m)
+    else:
+        data = load_dataset(args.data)
+        mc = _model_config(args, data.n, data.m)
+        test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
+        config = TrainConfig(
+            model=mc,
+            epochs=args.epochs,
+            batch_size=args.batch_size,
+            lr=args.lr,
+            schedule=args.schedule,
+            warmup=args.warmup,
+            lr_final=args.lr_final,
+            weight_decay=args.weight_decay,
+            clip_norm=args.clip_norm,
+            loss=args.loss,
+            loss_weight=args.loss_weight,
+            substeps=args.substeps,
+            input_hold=args.input_hold,
+            seed=args.seed,
+            seeds=args.seeds,
+            ensemble=args.ensemble,
+            test_trajectories=test,
+            split_seed=args.split_seed,
+            samples=args.samples,
+            patience=args.patience,
+            eval_every=args.eval_every,
+            checkpoint_every=args.checkpoint_every,
+            lbfgs_steps=args.lbfgs_steps,
+        )
+    bar = _Bar(config.epochs * config.seeds, disable=args.quiet)
+    try:
+        result = train(
+            data,
+            None if args.resume else config,
+            args.out,
+            progress=bar,
+            force=args.force,
+            resume=args.resume,
+        )
+    finally:
+        bar.close()
+    m = result.metrics
+    if args.json:
+        print(json.dumps({"run": str(result.run_dir), **_nulls(m)}, allow_nan=False))
+    else:
+        bt = m["best_test_loss"]
+        print(
+            f"trained {len(m['seeds'])} seed(s) of a {config.model.kind} model on "
+            f"{m['pairs']['train']} pairs ({m['ensemble_mode']})"
+        )
+        print(
+            f"best test loss: {bt['mean']:.4e} ± {bt['std']:.3e}   (best seed {m['best_member']})"
+        )
+        print(f"run directory: {result.run_dir}")
+    return 0
+
+
+def _nulls(obj):
+    import math
+
+    if isinstance(obj, dict):
+        return {k: _nulls(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_nulls(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def cmd_predict(args) -> int:
+    _enable_x64()
+    from learn.predict import predict
+
+    traj = args.trajectories
+    if len(traj) == 1 and traj[0] in ("auto", "test", "all"):
+        traj = traj[0]
+    else:
+        from learn.errors import UserError
+
+        try:
+            traj = [int(t) for t in traj]
+        except ValueError:
+            raise UserError(
+                f"--trajectories takes 'test', 'all' or integer ids, got {' '.join(traj)}"
+            ) from None
+    res = predict(
+        args.run,
+        args.data,
+        horizon=args.horizon,
+        reset_every=args.reset_every,
+        dt=args.dt,
+        trajectories=traj,
+        member=args.member,
+        plot=args.plot,
+    )
+    out = res.to_json()
+    if args.json:
+        print(json.dumps(out, allow_nan=False))
+        return 0
+    one = out["one_step_error"]
+    fmt = lambda x: "inf" if x is None else f"{x:.4e}"
+    print(f"one-step error: {fmt(one['mean'])} ± {fmt(one['std'])} over {one['pairs']} pairs")
+    extra = ""
+    if args.reset_every:
+        extra += f", reset every {args.reset_every:g} s"
+    if args.dt:
+        extra += f", dt {args.dt:g} s"
+    print(
+        f"rollout error ({args.horizon:g} s{extra}): {fmt(out['rollout_error_mean'])} ± "
+        f"{fmt(out['rollout_error_std'])} over {len(out['trajectories'])} trajectories"
+    )
+    if out["plot"]:
+        print(f"plot: {out['plot']}")
+    return 0

@@ -1,0 +1,222 @@
+"""Training (learn/train.py): physics nets learn the analytic systems, ensembles equal single
+runs, resume equals an uninterrupted run, interruption and divergence leave loadable runs."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from datagen import blackbox_train_config, make_dataset, tiny_model_config
+
+from learn import checkpoint as ckpt
+from learn.data import load_dataset
+from learn.errors import UserError
+from learn.models import make_model
+from learn.predict import evaluate
+from learn.train import TrainConfig, TrainingDiverged, load_ensemble, load_run, train
+
+
+def _leaves(model):
+    return jax.tree.leaves(eqx.filter(model, eqx.is_array))
+
+
+def assert_same_params(a, b, *, exact=False):
+    la, lb = _leaves(a), _leaves(b)
+    assert len(la) == len(lb)
+    for x, y in zip(la, lb, strict=True):
+        if exact:
+            np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+        else:
+            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-9, atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def msd(tmp_path_factory):
+    path = make_dataset(tmp_path_factory.mktemp("msd") / "msd.npz", trajectories=5, duration=4.0)
+    return load_dataset(path)
+
+
+@pytest.fixture(scope="module")
+def pendulum(tmp_path_factory):
+    path = make_dataset(
+        tmp_path_factory.mktemp("pend") / "pend.npz", "pendulum", trajectories=4, duration=3.0
+    )
+    return load_dataset(path)
+
+
+def _learns(data, config, out, horizon):
+    """Train; return (initial test loss, best test loss, trained rollout, untrained rollout)."""
+    res = train(data, config, out)
+    hist = res.members[0].history
+    assert hist[0]["epoch"] == 0  # the untrained model is recorded first
+    ids = list(config.test_trajectories)
+    trained = evaluate(res.model, data, ids, horizon=horizon)
+    untrained = evaluate(
+        make_model(config.model, key=jax.random.PRNGKey(0)), data, ids, horizon=horizon
+    )
+    return hist[0]["test_loss"], res.metrics["best_test_loss"]["mean"], trained, untrained
+
+
+def test_lagrangian_learns_mass_spring_damper(msd, tmp_path):
+    cfg = TrainConfig(
+        model=tiny_model_config("lagrangian"),
+        epochs=150,
+        batch_size=32,
+        lr=1e-2,
+        test_trajectories=(4,),
+    )
+    first, best, trained, untrained = _learns(msd, cfg, tmp_path / "lag", horizon=2.7)
+    assert best < first / 100, (first, best)
+    assert trained.one_step_error["mean"] < untrained.one_step_error["mean"] / 100
+    assert trained.rollout_error_mean < untrained.rollout_error_mean / 100, (
+        trained.rollout_error_mean,
+        untrained.rollout_error_mean,
+    )
+    run = load_run(tmp_path / "lag")
+    assert run.model_config == cfg.model and run.train_config == cfg
+    mats = run.model.matrices(jnp.zeros(2))
+    assert mats["M"].shape == (2, 2) and mats["A"].shape == (2, 1)
+
+
+def test_hamiltonian_learns_pendulum(pendulum, tmp_path):
+    cfg = TrainConfig(
+        model=tiny_model_config("hamiltonian", n=1, m=1),
+        epochs=100,
+        batch_size=32,
+        lr=2e-2,
+        test_trajectories=(3,),
+    )
+    first, best, trained, untrained = _learns(pendulum, cfg, tmp_path / "ham", horizon=2.0)
+    assert best < first / 100, (first, best)
+    assert trained.rollout_error_mean < untrained.rollout_error_mean / 100
+
+
+def test_ensemble_members_equal_single_runs(msd, tmp_path):
+    cfg = blackbox_train_config(seeds=2, seed=3)
+    vm = train(msd, dataclasses.replace(cfg, ensemble="vmap"), tmp_path / "vmap")
+    sq = train(msd, dataclasses.replace(cfg, ensemble="sequential"), tmp_path / "seq")
+    singles = [
+        train(msd, dataclasses.replace(cfg, seeds=1, seed=s), tmp_path / f"single{s}")
+        for s in (3, 4)
+    ]
+    assert [m.seed for m in vm.members] == [3, 4]
+    for k in range(2):
+        assert_same_params(vm.members[k].model, singles[k].members[0].model)
+        assert_same_params(sq.members[k].model, singles[k].members[0].model, exact=True)
+        np.testing.assert_allclose(
+            vm.members[k].metrics["best_test_loss"],
+            singles[k].metrics["best_test_loss"]["mean"],
+            rtol=1e-9,
+        )
+    # different seeds give different models, and the aggregate is their mean and std
+    assert not np.allclose(_leaves(vm.members[0].model)[0], _leaves(vm.members[1].model)[0])
+    best = [m.metrics["best_test_loss"] for m in vm.members]
+    assert vm.metrics["best_test_loss"]["mean"] == pytest.approx(np.mean(best))
+    assert vm.metrics["best_test_loss"]["std"] == pytest.approx(np.std(best))
+    members = load_ensemble(tmp_path / "vmap")
+    assert [r.seed for r in members] == [3, 4]
+    assert load_run(tmp_path / "vmap").seed == vm.metrics["best_member"]
+    assert_same_params(load_run(tmp_path / "vmap", member=4).model, vm.members[1].model, exact=True)
+
+
+class _StopAt:
+    def __init__(self, epoch):
+        self.epoch = epoch
+
+    def __call__(self, info):
+        if info["epoch"] == self.epoch:
+            raise KeyboardInterrupt
+
+
+def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
+    cfg = blackbox_train_config()
+    full = train(msd, cfg, tmp_path / "full")
+    with pytest.raises(KeyboardInterrupt):
+        train(msd, cfg, tmp_path / "part", progress=_StopAt(5))
+    # the interrupted run is loadable, and its checkpoint holds the 5 completed epochs
+    header = ckpt.read_header(tmp_path / "part" / "checkpoint.eqx")
+    assert header["epoch"] == 5 and not header["adam_done"]
+    assert [r["epoch"] for r in ckpt.read_history(tmp_path / "part" / "history.csv")] == list(
+        range(6)
+    )
+    assert load_run(tmp_path / "part").seed == 0
+    resumed = train(msd, None, tmp_path / "part", resume=True)
+    assert_same_params(resumed.model, full.model, exact=True)
+    strip = lambda h: [(r["epoch"], r["train_loss"], r["test_loss"]) for r in h]
+    assert strip(resumed.members[0].history) == strip(full.members[0].history)
+    # model.eqx round trip gives the same parameters
+    assert_same_params(load_run(tmp_path / "part").model, full.model, exact=True)
+    # resuming with other options is refused
+    with pytest.raises(UserError, match=r"--resume: the options differ .*\(epochs\)"):
+        train(msd, dataclasses.replace(cfg, epochs=13), tmp_path / "part", resume=True)
+
+
+def test_existing_run_dir_needs_force(msd, tmp_path):
+    cfg = blackbox_train_config(epochs=12)
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "notes.txt").write_text("keep me")
+    with pytest.raises(UserError, match="already exists and is not empty; use --force"):
+        train(msd, cfg, out)
+    train(msd, cfg, out, force=True)
+    assert (out / "notes.txt").read_text() == "keep me"
+    assert (out / "model.eqx").is_file() and (out / "loss.png").is_file()
+    rows = ckpt.read_history(out / "history.csv")
+    assert [r["epoch"] for r in rows] == list(range(13))
+
+
+def test_nan_loss_stops_with_message(msd, tmp_path):
+    cfg = blackbox_train_config(lr=1e30, schedule="constant", warmup=0.0)
+    with pytest.raises(TrainingDiverged, match=r"loss became NaN/inf \(seed 0: diverged at epoch"):
+        train(msd, cfg, tmp_path / "nan")
+    run = load_run(tmp_path / "nan")
+    assert all(np.isfinite(np.asarray(x)).all() for x in _leaves(run.model))
+    header = ckpt.read_header(tmp_path / "nan" / "checkpoint.eqx")
+    assert header["stopped"][0].startswith("diverged")
+
+
+def test_early_stopping_keeps_best(msd, tmp_path):
+    cfg = blackbox_train_config(epochs=200, lr=0.3, schedule="constant", warmup=0.0, patience=2)
+    res = train(msd, cfg, tmp_path / "es")
+    m = res.members[0].metrics
+    assert m["stopped"].startswith("early stop") and m["epochs_run"] < 200
+    hist = res.members[0].history
+    assert m["best_test_loss"] == min(r["test_loss"] for r in hist)
+    assert hist[-1]["epoch"] - m["best_epoch"] == 2
+
+
+def test_lbfgs_finish_and_float32_and_accel(msd, tmp_path):
+    cfg = blackbox_train_config(lbfgs_steps=20)
+    res = train(msd, cfg, tmp_path / "lb")
+    hist = res.members[0].history
+    adam = [r for r in hist if r["phase"] == "adamw"]
+    lb = [r for r in hist if r["phase"] == "lbfgs"]
+    assert len(lb) == 2 and lb[0]["epoch"] == 13
+    assert res.metrics["best_test_loss"]["mean"] < min(r["test_loss"] for r in adam) / 2
+
+    m32 = tiny_model_config("blackbox", dtype="float32")
+    res = train(msd, blackbox_train_config(model=m32), tmp_path / "f32")
+    assert all(x.dtype == jnp.float32 for x in _leaves(res.model))
+    h = res.members[0].history
+    assert h[-1]["test_loss"] < h[0]["test_loss"] / 2
+
+    res = train(msd, blackbox_train_config(loss="accel", lr=3e-2), tmp_path / "acc")
+    h = res.members[0].history  # eq. 10: squared error of (q̇, q̈)
+    assert h[-1]["test_loss"] < h[0]["test_loss"] / 5
+    with pytest.raises(UserError, match="needs velocity-state data"):
+        blackbox_train_config(loss="accel", model=tiny_model_config("hamiltonian"))
+
+
+def test_bad_config_values():
+    with pytest.raises(UserError, match="--epochs must be an integer >= 1, got 0"):
+        blackbox_train_config(epochs=0)
+    with pytest.raises(UserError, match="--schedule must be one of"):
+        blackbox_train_config(schedule="linear")
+    with pytest.raises(UserError, match="--lr must be a positive number"):
+        blackbox_train_config(lr=-1.0)
+    cfg = blackbox_train_config(test_trajectories=[1, 2])
+    assert TrainConfig.from_dict(cfg.to_dict()) == cfg
