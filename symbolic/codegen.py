@@ -138,11 +138,18 @@ def compile_c(
             raise CompilerError(
                 f"C compiler {compiler} failed on {source} (exit {proc.returncode}): {last[0]}"
             )
+        os.chmod(tmp, 0o777 & ~_umask())
         os.replace(tmp, library)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return time.perf_counter() - start
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
@@ -375,6 +382,7 @@ def _install_in_cache(fns, library: Path, source: Path, cc: str, flags, director
         os.close(fd)
         try:
             shutil.copyfile(src, tmp)
+            os.chmod(tmp, 0o777 & ~_umask() if dst.suffix == ".so" else 0o666 & ~_umask())
             os.replace(tmp, dst)
         finally:
             if os.path.exists(tmp):

@@ -497,11 +497,18 @@ def write_dataset(path: str | os.PathLike, data: DatasetArrays, *, force: bool =
                 **{k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
                 meta=np.array(json.dumps(data.meta)),
             )
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
     return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
 
 
 def read_dataset(path: str | os.PathLike) -> DatasetArrays:

@@ -267,8 +267,14 @@ def simulate(
             raise SimulationError(f"signal: expected {m} inputs, got {s.m}")
     k_all = len(x0)
     t = config.times()
-    xs = np.empty((k_all, len(t), nx))
-    start = time.perf_counter()
+    nt = len(t)
+    xs = np.empty((k_all, nt, nx))
+    u = np.empty((k_all, nt, m))
+    qdd = np.empty((k_all, nt, n))
+    mom = np.empty((k_all, nt, n))
+    check = config.max_condition is not None and "M" in fns
+    max_cond = 0.0 if check else None
+    integrate_s = post_s = 0.0
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(signals):
         groups.setdefault(s.structure(), []).append(i)
@@ -281,6 +287,7 @@ def simulate(
         chunk = config.threads
         for c0 in range(0, len(idx), chunk):
             ids = idx[c0 : c0 + chunk]
+            start = time.perf_counter()
             fm = f.map(len(ids), "thread", min(config.threads, len(ids))) if len(ids) > 1 else f
             p = _signal_params([signals[i] for i in ids])
             if config.integrator == "cvodes":
@@ -294,50 +301,42 @@ def simulate(
                 raise SingularityError(
                     f"trajectories {ids}: the integrator failed: {' '.join(str(exc).split())}"
                 ) from None
-            arr = np.asarray(out).reshape(nx, len(ids), len(t)).transpose(1, 2, 0)
+            arr = np.asarray(out).reshape(nx, len(ids), nt).transpose(1, 2, 0)
             xs[ids] = arr
             for j, i in enumerate(ids):
                 _check_finite(arr[j], t, i, n)
+            integrate_s += time.perf_counter() - start
+            # accelerations, momenta and conditioning of this chunk (bounded memory)
+            start = time.perf_counter()
+            uu = np.stack([signals[i](t) for i in ids])
+            u[ids] = uu
+            flat_u = uu.reshape(len(ids) * nt, m)
+            a, pm, mm = _postprocess(fns, arr.reshape(-1, nx), flat_u, n, config.threads)
+            qdd[ids] = a.reshape(len(ids), nt, n)
+            mom[ids] = pm.reshape(len(ids), nt, n)
+            for j, i in enumerate(ids):
+                _check_finite(np.hstack([arr[j], qdd[i]]), t, i, n, what="acceleration")
+            if check:
+                cond = condition_numbers(mm.reshape(len(ids), nt, n, n))
+                max_cond = max(max_cond, float(np.max(cond)))
+                bad = np.argwhere(~(cond <= config.max_condition))
+                if len(bad):
+                    j, k = bad[0]
+                    raise SingularityError(
+                        f"trajectory {ids[j]}: the mass matrix is ill-conditioned (cond = "
+                        f"{cond[j, k]:.3g} > {config.max_condition:g}) at t = {t[k]:.6g} s, "
+                        f"state {_fmt(arr[j, k], n)}; the model is singular there (phi-theta "
+                        'at theta = 0?): use parameterization = "delta"'
+                    )
+            post_s += time.perf_counter() - start
             if progress is not None:
                 progress(len(ids))
-    integrate_s = time.perf_counter() - start
-
-    u = np.stack([s(t) for s in signals]) if k_all else np.zeros((0, len(t), m))
-    flat_x = xs.reshape(-1, nx)
-    flat_u = u.reshape(k_all * len(t), m)
-    post = time.perf_counter()
-    check = config.max_condition is not None and "M" in fns
-    qdd, mom, mm = _postprocess(fns, flat_x, flat_u, n, config.threads)
-    for k in range(k_all):
-        rows = slice(k * len(t), (k + 1) * len(t))
-        _check_finite(np.hstack([xs[k], qdd[rows]]), t, k, n, what="acceleration")
-    max_cond = None
-    if check:
-        cond = condition_numbers(mm.reshape(k_all, len(t), n, n))
-        max_cond = float(np.max(cond)) if cond.size else None
-        bad = np.argwhere(~(cond <= config.max_condition))
-        if len(bad):
-            k, j = bad[0]
-            raise SingularityError(
-                f"trajectory {k}: the mass matrix is ill-conditioned (cond = {cond[k, j]:.3g} > "
-                f"{config.max_condition:g}) at t = {t[j]:.6g} s, state "
-                f"{_fmt(xs[k, j], n)}; the model is singular there (phi-theta at theta = 0?): "
-                'use parameterization = "delta"'
-            )
     info = {
         "integrate_seconds": integrate_s,
-        "postprocess_seconds": time.perf_counter() - post,
+        "postprocess_seconds": post_s,
         "max_mass_condition": max_cond,
     }
-    return SimResult(
-        t=t,
-        x=xs,
-        u=u,
-        qdd=qdd.reshape(k_all, len(t), n),
-        p=mom.reshape(k_all, len(t), n),
-        config=config,
-        info=info,
-    )
+    return SimResult(t=t, x=xs, u=u, qdd=qdd, p=mom, config=config, info=info)
 
 
 def _postprocess(fns, x, u, n, threads):
