@@ -87,13 +87,21 @@ _pair_errors_static = eqx.filter_jit(
 )
 
 
+def _bucket(n: int) -> int:
+    """Padded length: the next power of two (at least 16), so that calls with similar sizes
+    share one compiled function."""
+    return max(16, 1 << (int(n) - 1).bit_length())
+
+
 def one_step_errors(
     model, pairs: Pairs, *, weight=1.0, substeps: int = 1, input_hold: str = "constant"
 ) -> np.ndarray:
     """Per-pair error of eq. 8/9 for every pair, as a numpy array (B,)."""
-    return np.asarray(
-        _pair_errors_static(model, pairs, weight, substeps=substeps, input_hold=input_hold)
-    )
+    n = pairs.x0.shape[0]
+    idx = np.arange(_bucket(n)) % n  # pad with copies of real pairs, dropped below
+    padded = jax.tree.map(lambda a: a[idx], pairs)
+    errs = _pair_errors_static(model, padded, weight, substeps=substeps, input_hold=input_hold)
+    return np.asarray(errs)[:n]
 
 
 @eqx.filter_jit
@@ -156,7 +164,7 @@ def rollouts(
             ug = _interp_rows(tg, td, ud) if ud.shape[1] else np.zeros((tg.size, 0))
             xg = _interp_rows(tg, td, xd)
         grids.append((tr["id"], td, xd, tg, ug, xg, _reset_mask(tg, t0, reset_every)))
-    L = max(g[3].size for g in grids)
+    L = _bucket(max(g[3].size for g in grids))
 
     def pad(a, k):
         return np.concatenate([a, np.repeat(a[-1:], k, axis=0)], axis=0) if k else a

@@ -1,0 +1,124 @@
+"""``softpinn train`` / ``softpinn predict`` through ``bridge.cli.main``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from datagen import make_dataset, simulate, write
+
+from bridge.cli import main
+
+# the same settings as tests/datagen.py:blackbox_train_config, so the program compiles once
+TRAIN = [
+    "--model", "blackbox", "--hidden", "16", "2", "--epochs", "12", "--batch-size", "64",
+    "--lr", "1e-2", "--test-trajectories", "4", "--checkpoint-every", "1000", "--quiet",
+]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    return make_dataset(tmp_path_factory.mktemp("cli") / "msd.npz", trajectories=5, duration=4.0)
+
+
+@pytest.fixture(scope="module")
+def run(data, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli") / "run"
+    assert main(["train", str(data), "--out", str(out), *TRAIN]) == 0
+    return out
+
+
+def _error_line(capsys):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("softpinn: error: ")
+    return err[0]
+
+
+def test_train_writes_run_dir(run, capsys):
+    for name in ("config.json", "model.eqx", "checkpoint.eqx", "history.csv", "metrics.json",
+                 "loss.png"):  # fmt: skip
+        assert (run / name).is_file(), name
+    cfg = json.loads((run / "config.json").read_text())
+    assert cfg["model"]["kind"] == "blackbox" and cfg["model"]["hidden"] == [16, 2]
+    assert cfg["train"]["epochs"] == 12 and cfg["split"]["test"] == [4]
+    assert len(cfg["dataset"]["sha256"]) == 64
+
+
+def test_train_json_resume_and_force(data, run, capsys, tmp_path):
+    out = tmp_path / "r"
+    assert main(["train", str(data), "--out", str(out), *TRAIN, "--json"]) == 0
+    m = json.loads(capsys.readouterr().out)
+    assert m["seeds"] == [0] and m["best_test_loss"]["mean"] > 0
+    # same options as the module run: identical result
+    ref = json.loads((run / "metrics.json").read_text())
+    assert m["best_test_loss"]["mean"] == ref["best_test_loss"]
+    assert main(["train", str(data), "--out", str(out), *TRAIN]) == 2
+    assert "already exists and is not empty; use --force" in _error_line(capsys)
+    assert main(["train", str(data), "--out", str(out), "--resume", "--quiet"]) == 0
+    assert main(["train", str(data), "--out", str(out), *TRAIN, "--force"]) == 0
+
+
+def test_predict_json(run, data, capsys, tmp_path):
+    capsys.readouterr()
+    png = tmp_path / "p.png"
+    args = ["predict", str(run), str(data), "--horizon", "2", "--json", "--plot", str(png)]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("one_step_error", "rollout_error_mean", "rollout_error_std", "horizon",
+                "trajectories"):  # fmt: skip
+        assert key in out
+    assert out["horizon"] == 2.0 and out["trajectories"] == [4] and png.is_file()
+    assert set(out["one_step_error"]) >= {"mean", "std"}
+    args = ["predict", str(run), str(data), "--horizon", "2", "--reset-every", "0.5",
+            "--dt", "0.025", "--trajectories", "all"]  # fmt: skip
+    assert main(args) == 0
+    text = capsys.readouterr().out
+    assert "rollout error (2 s, reset every 0.5 s, dt 0.025 s)" in text
+    assert "over 5 trajectories" in text
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ("nan", "'q' holds 1 NaN/inf value(s)"),
+        ("time", "time must increase within a trajectory"),
+        ("shape", "'p' must have shape"),
+        ("missing", "missing key(s) qdd"),
+    ],
+)
+def test_train_bad_dataset_one_line(change, message, tmp_path, capsys):
+    a = simulate("msd", trajectories=2, duration=1.0)
+    if change == "nan":
+        a["q"][3, 0] = np.nan
+    elif change == "time":
+        a["t"][4] = a["t"][2]
+    elif change == "shape":
+        a["p"] = a["p"][:, :1]
+    else:
+        del a["qdd"]
+    path = write(tmp_path / "bad.npz", a)
+    assert main(["train", str(path), "--out", str(tmp_path / "r"), *TRAIN]) == 2
+    line = _error_line(capsys)
+    assert message in line and "bad.npz" in line
+
+
+def test_cli_user_errors(run, data, tmp_path, capsys):
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), "--quiet"]) == 2
+    assert "--model is required" in _error_line(capsys)
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--epochs", "0"]) == 2
+    assert "--epochs must be an integer >= 1, got 0" in _error_line(capsys)
+    assert main(["predict", str(run), str(data), "--horizon", "-1"]) == 2
+    assert "--horizon must be a positive number" in _error_line(capsys)
+    assert main(["predict", str(tmp_path / "nope"), str(data), "--horizon", "1"]) == 2
+    assert "no such directory" in _error_line(capsys)
+    pend = make_dataset(tmp_path / "pend.npz", "pendulum", trajectories=2, duration=1.0)
+    assert main(["predict", str(run), str(pend), "--horizon", "1"]) == 2
+    assert "model has n=2 coordinates, the file has n=1" in _error_line(capsys)
+    assert main(["predict", str(run), str(data), "--horizon", "1", "--trajectories", "x"]) == 2
+    assert "--trajectories takes" in _error_line(capsys)
+    with pytest.raises(SystemExit) as exc:
+        main(["train", str(data), "--model", "nonsense", "--out", str(tmp_path / "x")])
+    assert exc.value.code == 2
+    assert "invalid choice" in _error_line(capsys)
