@@ -230,3 +230,22 @@ def test_bad_initial_state_and_signal():
         simulate(fns, np.zeros((1, 2)), [Zero(2)], cfg)
     with pytest.raises(SimulationError, match="one per trajectory"):
         simulate(fns, np.zeros((2, 2)), [Zero(1)], cfg)
+
+
+def test_ill_conditioned_mass_matrix_raises():
+    """cond(M) above max_condition stops the simulation (checked every condition_stride-th)."""
+    x, u, q, qd = ca.SX.sym("x", 4), ca.SX.sym("u", 0), ca.SX.sym("q", 2), ca.SX.sym("qd", 2)
+    fns = {
+        "ode": ca.Function("c_ode", [x, u], [ca.vertcat(x[2:], 0, 0)], ["x", "u"], ["xdot"]),
+        "forward": ca.Function("c_fwd", [q, qd, u], [ca.SX.zeros(2)], ["q", "qd", "u"], ["qdd"]),
+        "momentum": ca.Function("c_mom", [q, qd], [qd], ["q", "qd"], ["p"]),
+        "M": ca.Function("c_M", [q], [ca.diag(ca.vertcat(1, ca.exp(-100 * q[0])))], ["q"], ["M"]),
+    }
+    x0 = np.array([[0.0, 0.0, 1.0, 0.0]])  # q0 = t: cond(M) = exp(100 t) passes 1e12 at 0.276 s
+    cfg = SimulationConfig(duration=1.0, rate=100.0, condition_stride=5)
+    with pytest.raises(SingularityError, match=r"ill-conditioned \(cond = .* at t = 0.3 s"):
+        simulate(fns, x0, [Zero(0)], cfg)
+    res = simulate(
+        fns, x0, [Zero(0)], SimulationConfig(duration=1.0, rate=100.0, max_condition=None)
+    )
+    assert res.info["max_mass_condition"] is None
