@@ -317,15 +317,16 @@ def simulate(
             uu = np.stack([signals[i](t) for i in ids])
             u[ids] = uu
             flat_u = uu.reshape(len(ids) * nt, m)
-            a, pm = _postprocess(fns, arr.reshape(-1, nx), flat_u, n, config.threads)
+            a, pm, mm = _postprocess(fns, arr.reshape(-1, nx), flat_u, n, config.threads)
             qdd[ids] = a.reshape(len(ids), nt, n)
             mom[ids] = pm.reshape(len(ids), nt, n)
             for j, i in enumerate(ids):
                 _check_finite(np.hstack([arr[j], qdd[i]]), t, i, n, what="acceleration")
             if check:
-                stride = config.condition_stride
+                stride = config.condition_stride if mm is None else 1
                 qs = arr[:, ::stride, :n]
-                mm = batched(fns["M"], qs.reshape(-1, n), threads=config.threads)
+                if mm is None:
+                    mm = batched(fns["M"], qs.reshape(-1, n), threads=config.threads)
                 cond = condition_numbers(mm.reshape(len(ids), qs.shape[1], n, n))
                 max_cond = max(max_cond, float(np.max(cond)))
                 bad = np.argwhere(~(cond <= config.max_condition))
@@ -350,14 +351,21 @@ def simulate(
 
 
 def _postprocess(fns, x, u, n, threads):
-    """qdd = forward(q, qd, u) and p = M(q) qd at every sample: one mapped call."""
+    """qdd = forward(q, qd, u), p = M(q) qd (and M where the model's functions include
+    ``"outputs"(q, qd, u) -> (qdd, p, M)``, which shares the work) at every sample: one mapped
+    call. Returns (qdd, p, M or None)."""
     xs = ca.MX.sym("x", 2 * n)
     us = ca.MX.sym("u", u.shape[1])
     q, qd = xs[:n], xs[n:]
-    outs = [fns["forward"](q, qd, us), fns["momentum"](q, qd)]
+    if "outputs" in fns:
+        qdd, p, mass = fns["outputs"](q, qd, us)
+        outs = [qdd, p, ca.reshape(mass, n * n, 1)]
+    else:
+        outs = [fns["forward"](q, qd, us), fns["momentum"](q, qd)]
     post = ca.Function("post", [xs, us], [ca.vertcat(*outs)])
     res = batched(post, x, u, threads=threads)
-    return res[:, :n], res[:, n:]
+    mass = res[:, 2 * n :].reshape(-1, n, n).transpose(0, 2, 1) if "outputs" in fns else None
+    return res[:, :n], res[:, n : 2 * n], mass
 
 
 def batched(fn: ca.Function, *args: np.ndarray, threads: int = 1) -> np.ndarray:
