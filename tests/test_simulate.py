@@ -249,3 +249,12 @@ def test_ill_conditioned_mass_matrix_raises():
         fns, x0, [Zero(0)], SimulationConfig(duration=1.0, rate=100.0, max_condition=None)
     )
     assert res.info["max_mass_condition"] is None
+    # a model with a combined "outputs"(q, qd, u) -> (qdd, p, M) function: M at every sample
+    mass = fns["M"](q)
+    fns["outputs"] = ca.Function(
+        "c_out", [q, qd, u], [ca.SX.zeros(2), mass @ qd, mass], ["q", "qd", "u"], ["qdd", "p", "M"]
+    )
+    with pytest.raises(SingularityError, match=r"ill-conditioned \(cond = .* at t = 0.28 s"):
+        simulate(fns, x0, [Zero(0)], cfg)
+    res = simulate(fns, np.array([[0.0, 0.0, 0.2, 0.5]]), [Zero(0)], cfg)
+    np.testing.assert_allclose(res.p[0, :, 1], 0.5 * np.exp(-100 * res.q[0, :, 0]), rtol=1e-12)
