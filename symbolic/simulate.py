@@ -310,7 +310,7 @@ def simulate(
             arr = np.asarray(out).reshape(nx, len(ids), nt).transpose(1, 2, 0)
             xs[ids] = arr
             for j, i in enumerate(ids):
-                _check_finite(arr[j], t, i, n)
+                _check_finite(arr[j], t, i, n, integrator=config.integrator, dt=config.step)
             integrate_s += time.perf_counter() - start
             # accelerations, momenta and conditioning of this chunk (bounded memory)
             start = time.perf_counter()
@@ -404,7 +404,15 @@ def _fmt(x: np.ndarray, n: int) -> str:
     return f"q = [{q}], qd = [{qd}]"
 
 
-def _check_finite(arr: np.ndarray, t: np.ndarray, k: int, n: int, what: str = "state"):
+def _check_finite(
+    arr: np.ndarray,
+    t: np.ndarray,
+    k: int,
+    n: int,
+    what: str = "state",
+    integrator: str = "cvodes",
+    dt: float = 0.0,
+):
     bad = ~np.all(np.isfinite(arr), axis=1)
     if bad.any():
         j = int(np.argmax(bad))
@@ -413,9 +421,16 @@ def _check_finite(arr: np.ndarray, t: np.ndarray, k: int, n: int, what: str = "s
             if j
             else f"at t = 0: {_fmt(arr[0, : 2 * n], n)}"
         )
+        hint = (
+            f"either the fixed step dt = {dt:g} s is too large for a stiff stretch of this "
+            "trajectory (use a smaller --dt or --integrator cvodes) or the model is singular "
+            'there (phi-theta at theta = 0?: use parameterization = "delta")'
+            if integrator == "rk4"
+            else "the model is singular there (phi-theta at theta = 0?): use parameterization = "
+            '"delta"'
+        )
         raise SingularityError(
-            f"trajectory {k}: the {what} is not finite at t = {t[j]:.6g} s ({last}); the model is "
-            'singular there (phi-theta at theta = 0?): use parameterization = "delta"'
+            f"trajectory {k}: the {what} is not finite at t = {t[j]:.6g} s ({last}); {hint}"
         )
 
 
