@@ -82,8 +82,8 @@ def test_step_input_is_exact():
     np.testing.assert_allclose(res.q[0, :, 0], exact, atol=1e-9)
 
 
-def test_double_pendulum_conserves_energy():
-    fns = codegen.compiled(functions("task2"))
+def test_double_pendulum_conserves_energy(cache):
+    fns = codegen.compiled(functions("task2"), directory=cache)
     x0 = np.array([[1.2, -0.5, 0.3, 0.8]])
     cfg = SimulationConfig(duration=10.0, rate=100.0, rtol=1e-13, atol=1e-13)
     res = simulate(fns, x0, [Zero(0)], cfg)
