@@ -396,6 +396,7 @@ def make_dataset(
     total, seed, noise, kind = plan.trajectories, plan.seed, plan.noise, plan.signal
     integ = sim.integrator
     timings: dict[str, float] = {}
+    is_compiled = from_cache = None  # unknown when the caller passes the functions
     if fns is None:
         t0 = time.perf_counter()
         from .functions import functions
@@ -406,8 +407,12 @@ def make_dataset(
             from .codegen import compile_functions
 
             t0 = time.perf_counter()
-            fns = compile_functions(fns, directory=cache).functions
+            built = compile_functions(fns, directory=cache)
+            fns, is_compiled = built.functions, built.compiled
             timings["compile"] = time.perf_counter() - t0
+            from_cache = built.from_cache
+        else:
+            is_compiled = False
     ids = list(range(total))
     x0, sigs = draw_trajectories(
         cfg, spec.n, spec.m, ids, kind=kind, duration=sim.duration, seed=seed
@@ -460,7 +465,8 @@ def make_dataset(
         "physics_samples": cfg.physics_samples,
         "rates": sorted(set(cfg.rates) | {sim.rate}) if integ == "cvodes" else [sim.rate],
         "max_mass_condition": res.info.get("max_mass_condition"),
-        "compiled": bool(compile) and fns is not None,
+        "compiled": is_compiled,
+        "compiled_from_cache": from_cache,
         "package_version": _version("softpinn"),
         "casadi_version": _version("casadi"),
         "numpy_version": np.__version__,

@@ -216,3 +216,12 @@ def test_write_refuses_existing_file(task4_data, tmp_path):
         write_dataset(tmp_path / "d.csv", task4_data)
     with pytest.raises(DataError, match="no such file"):
         read_dataset(tmp_path / "missing.npz")
+
+
+def test_virtual_machine_and_compiled_pipelines_agree(cache):
+    c = make_dataset("task3", trajectories=1, duration=1.0, cache=cache)
+    vm = make_dataset("task3", trajectories=1, duration=1.0, compile=False)
+    assert c.meta["compiled"] and not vm.meta["compiled"]
+    for key in ("q", "qd", "qdd", "p"):
+        np.testing.assert_allclose(getattr(vm, key), getattr(c, key), rtol=1e-7, atol=1e-9)
+    np.testing.assert_array_equal(vm.u, c.u)
