@@ -235,21 +235,28 @@ def compile_functions(
     gen_s = comp_s = 0.0
     from_cache = library.is_file()
     if not from_cache:
-        t0 = time.perf_counter()
-        source = write_c(fns, root, stem)
-        gen_s = time.perf_counter() - t0
-        comp_s = compile_c(source, library, compiler=cc, flags=flags, timeout=timeout)
-        (root / "functions.json").write_text(
-            json.dumps(
-                {
-                    "functions": {k: f.name() for k, f in fns.items()},
-                    "compiler": cc,
-                    "flags": list(flags),
-                    "casadi": ca.__version__,
-                },
-                indent=1,
+        # a private build directory: concurrent processes never read a half-written file
+        root.mkdir(parents=True, exist_ok=True)
+        build = Path(tempfile.mkdtemp(prefix=".build-", dir=root))
+        try:
+            t0 = time.perf_counter()
+            tmp_source = write_c(fns, build, stem)
+            gen_s = time.perf_counter() - t0
+            comp_s = compile_c(
+                tmp_source, build / library.name, compiler=cc, flags=flags, timeout=timeout
             )
-        )
+            info = {
+                "functions": {k: f.name() for k, f in fns.items()},
+                "compiler": cc,
+                "flags": list(flags),
+                "casadi": ca.__version__,
+            }
+            (build / "functions.json").write_text(json.dumps(info, indent=1))
+            os.replace(build / "functions.json", root / "functions.json")
+            os.replace(tmp_source, source)
+            os.replace(build / library.name, library)  # last: its presence means "cached"
+        finally:
+            shutil.rmtree(build, ignore_errors=True)
     loaded = load_external(fns, library, enable_fd=enable_fd)
     return Compiled(
         functions=loaded,

@@ -69,8 +69,27 @@ def test_cache_hit_on_second_call(tmp_path):
     third = codegen.compile_functions(fns, directory=tmp_path, flags=("-O0", "-fPIC", "-shared"))
     assert not third.from_cache and third.key != first.key
     assert codegen.content_hash(toy_functions("other")) != codegen.content_hash(fns)
-    # no temporary files left behind
+    # no temporary files or build directories left behind
     assert not [p for p in tmp_path.rglob("*.tmp")]
+    assert not list(tmp_path.rglob(".build-*"))
+
+
+def test_concurrent_compiles_of_the_same_functions(tmp_path):
+    """Two compiles of one key at once both succeed (private build directories, atomic install)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    fns = toy_functions("race")
+    with ThreadPoolExecutor(2) as pool:
+        results = list(
+            pool.map(lambda _: codegen.compile_functions(fns, directory=tmp_path), range(2))
+        )
+    assert results[0].library == results[1].library and results[0].library.is_file()
+    q = np.array([0.1, 0.2, 0.3])
+    for r in results:
+        np.testing.assert_allclose(
+            np.asarray(r.functions["M"](q)), np.asarray(fns["M"](q)), rtol=1e-12
+        )
+    assert not list(tmp_path.rglob(".build-*"))
 
 
 def test_cache_dir_from_environment(tmp_path, monkeypatch):
