@@ -237,11 +237,20 @@ def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
     return chunks, weights
 
 
-def make_optimizer(config: TrainConfig, steps_per_epoch: int) -> optax.GradientTransformation:
-    """AdamW with the configured warmup + decay schedule over ``epochs * steps_per_epoch``."""
+def make_optimizer(
+    config: TrainConfig, steps_per_epoch: int, *, peak: float | None = None
+) -> optax.GradientTransformation:
+    """AdamW with the configured warmup + decay schedule over ``epochs * steps_per_epoch``.
+
+    ``peak`` overrides ``config.lr``; the training engine builds the schedule with peak 1 and
+    multiplies the updates by the learning rate at run time (AdamW's update, weight decay
+    included, is linear in the learning rate), so runs that differ only in ``lr`` share one
+    compiled program.
+    """
     total = max(1, config.epochs * steps_per_epoch)
     warm = int(config.warmup * total)
-    lr, end = config.lr, config.lr * config.lr_final
+    lr = config.lr if peak is None else peak
+    end = lr * config.lr_final
     if config.schedule == "cosine":
         sched = optax.warmup_cosine_decay_schedule(
             init_value=0.0 if warm else lr,
@@ -307,7 +316,7 @@ class _Programs:
         self.n_train = n_train
         self.batch = batch
         self.steps = n_train // batch
-        self.opt = make_optimizer(config, self.steps)
+        self.opt = make_optimizer(config, self.steps, peak=1.0)
         loss_of = loss_function(config)
 
         def loss_params(params, batch_pairs):
@@ -316,7 +325,7 @@ class _Programs:
         self._loss_params = loss_params
         grad_fn = jax.value_and_grad(loss_params)
 
-        def one_epoch(params, opt_state, key, epoch, train):
+        def one_epoch(params, opt_state, key, epoch, lr, train):
             perm = jax.random.permutation(jax.random.fold_in(key, epoch), n_train)
             idx = perm[: self.steps * batch].reshape(self.steps, batch)
 
@@ -325,16 +334,16 @@ class _Programs:
                 b = jax.tree.map(lambda a: a[ix], train)
                 loss, g = grad_fn(p, b)
                 updates, s = self.opt.update(g, s, p)
-                p = optax.apply_updates(p, updates)
+                p = optax.apply_updates(p, jax.tree.map(lambda u: lr * u, updates))
                 return (p, s), loss
 
             (params, opt_state), losses = jax.lax.scan(body, (params, opt_state), idx)
             return params, opt_state, jnp.mean(losses)
 
         @jax.jit
-        def epoch_fn(params, opt_state, keys, epoch, active, train):
-            new_p, new_s, loss = jax.vmap(one_epoch, in_axes=(0, 0, 0, None, None))(
-                params, opt_state, keys, epoch, train
+        def epoch_fn(params, opt_state, keys, epoch, active, lr, train):
+            new_p, new_s, loss = jax.vmap(one_epoch, in_axes=(0, 0, 0, None, None, None))(
+                params, opt_state, keys, epoch, lr, train
             )
             return _select(active, new_p, params), _select(active, new_s, opt_state), loss
 
@@ -369,7 +378,13 @@ class _Programs:
 
         @jax.jit
         def lbfgs_fn(params, state, active, train):
-            new_p, new_s, v = jax.vmap(lbfgs_chunk, in_axes=(0, 0, None))(params, state, train)
+            if active.shape[0] == 1:
+                # one member: no vmap (a vmapped line-search while-loop compiles twice as long)
+                first = lambda t: jax.tree.map(lambda a: a[0], t)
+                new_p, new_s, v = lbfgs_chunk(first(params), first(state), train)
+                new_p, new_s, v = jax.tree.map(lambda a: a[None], (new_p, new_s, v))
+            else:
+                new_p, new_s, v = jax.vmap(lbfgs_chunk, in_axes=(0, 0, None))(params, state, train)
             return _select(active, new_p, params), _select(active, new_s, state), v
 
         self._lbfgs_fn = lbfgs_fn
@@ -384,7 +399,8 @@ class _Programs:
         return new
 
     def epoch_fn(self, params, opt_state, keys, epoch, active):
-        return self._epoch_fn(params, opt_state, keys, epoch, active, self.train)
+        lr = jnp.asarray(self.config.lr, self.train.x0.dtype)
+        return self._epoch_fn(params, opt_state, keys, epoch, active, lr, self.train)
 
     def _set_eval_data(self, train, test):
         self._train_chunks = _chunked(train, self.eval_size)
@@ -415,6 +431,7 @@ _PROGRAM_CACHE_SIZE = 8
 _UNCOMPILED = (
     "seed",
     "seeds",
+    "lr",
     "ensemble",
     "test_trajectories",
     "split_seed",
@@ -965,4 +982,3 @@ def load_ensemble(run_dir: str | Path) -> list[LoadedRun]:
     if "members" not in info:
         return [load_run(run_dir)]
     return [load_run(run_dir, member=s) for s in info["seeds"]]
-
