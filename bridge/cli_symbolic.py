@@ -12,9 +12,11 @@ The commands only map flags onto :mod:`symbolic` functions:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -243,15 +245,16 @@ def cmd_derive(args) -> int:
     t0 = time.perf_counter()
     fns = functions(spec)
     t_functions = time.perf_counter() - t0
-    summary = generate(
-        fns,
-        out,
-        compiler=args.compiler,
-        timeout=args.timeout,
-        timings={"derive": t_derive, "functions": t_functions},
-        cache=args.cache,
-        extra={"model": spec.name, "spec": spec.to_dict(), "n": spec.n, "m": spec.m},
-    )
+    with _warnings_as_lines():
+        summary = generate(
+            fns,
+            out,
+            compiler=args.compiler,
+            timeout=args.timeout,
+            timings={"derive": t_derive, "functions": t_functions},
+            cache=args.cache,
+            extra={"model": spec.name, "spec": spec.to_dict(), "n": spec.n, "m": spec.m},
+        )
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -340,12 +343,13 @@ def cmd_simulate(args) -> int:
     failed = True
     try:
         t0 = time.perf_counter()
-        data = make_dataset(
-            plan=plan,
-            compile=not args.no_compile,
-            cache=args.cache,
-            progress=bar.update if bar is not None else None,
-        )
+        with _warnings_as_lines():
+            data = make_dataset(
+                plan=plan,
+                compile=not args.no_compile,
+                cache=args.cache,
+                progress=bar.update if bar is not None else None,
+            )
         seconds = time.perf_counter() - t0
         failed = False
     finally:
@@ -366,6 +370,23 @@ def cmd_simulate(args) -> int:
             f"{sub.meta['samples_per_trajectory']} samples per trajectory)"
         )
     return 0
+
+
+@contextlib.contextmanager
+def _warnings_as_lines():
+    """Show the compiler fallback warning as one line ``softpinn: warning: ...``."""
+    from symbolic.codegen import CompilerWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CompilerWarning)
+        try:
+            yield
+        finally:
+            for w in caught:
+                if issubclass(w.category, CompilerWarning):
+                    print(f"softpinn: warning: {w.message}", file=sys.stderr)
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
 
 
 def _sibling(path: Path, rate: float) -> Path:

@@ -263,3 +263,16 @@ def test_simulate_singularity_is_one_line(capsys, tmp_path):
     assert err.count("\n") == 1 and err.startswith("softpinn: error: trajectory 0:")
     assert "t = 0 s" in err and "delta" in err
     assert not (tmp_path / "pt.npz").exists()
+
+
+def test_derive_without_compiler_warns_in_one_line(capsys, tmp_path):
+    status, out, err = run(
+        capsys, "derive", "task1", "--out", tmp_path / "d", "--compiler", tmp_path / "no-cc"
+    )
+    assert status == 0
+    assert err.strip().splitlines() == [
+        f"softpinn: warning: no C compiler found (compiler setting: {tmp_path / 'no-cc'}); "
+        "wrote the C source but no shared library"
+    ]
+    assert (tmp_path / "d" / "softpinn_eom.c").is_file()
+    assert not (tmp_path / "d" / "softpinn_eom.so").exists()
