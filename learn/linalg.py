@@ -8,19 +8,25 @@ Everything here is written for one matrix of a small, static size n (n <= ~12) a
 loops of vector operations: jaxlib's batched LAPACK calls (``cho_factor``, ``linalg.solve``,
 ``inv``) deadlocked at random on the development machine (jaxlib 0.10.2), and the unrolled
 forms were also the fastest under ``vmap`` at these sizes. Nothing here uses scatter
-(``.at[].set``): the factor is assembled from slices and concatenations, whose transposes are
-slices and pads, so gradients stay scatter-free too.
+(``.at[].set``) or gather: the factor is assembled by one product with a constant 0/1
+selection matrix, whose transpose is a product too, so gradients stay scatter-free.
 """
 
 from __future__ import annotations
 
+import functools
+
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 __all__ = [
+    "mv",
+    "mtv",
     "n_offdiag",
     "lower_from_parts",
     "parts_from_lower",
+    "parts_of_lower",
     "solve_lower",
     "solve_lower_transpose",
     "cho_solve",
@@ -29,9 +35,34 @@ __all__ = [
 ]
 
 
+def mv(A, x):
+    """A x for one small matrix A (r, c) and vector x (c,), as a fused multiply-and-sum.
+
+    Under ``vmap`` a batch of tiny ``dot``s runs slowly on CPU; an elementwise product and a
+    reduction fuse with their neighbours instead.
+    """
+    return jnp.sum(A * x, axis=-1)
+
+
+def mtv(A, x):
+    """Aᵀ x for one small matrix A (r, c) and vector x (r,), as a fused multiply-and-sum."""
+    return jnp.sum(A * x[:, None], axis=0)
+
+
 def n_offdiag(n: int) -> int:
     """Number of strictly-lower entries of an n x n matrix, (n² - n) / 2."""
     return n * (n - 1) // 2
+
+
+@functools.cache
+def _selection(n: int) -> np.ndarray:
+    """0/1 matrix S (n², k) with vec(L) = S @ concat(diag, off), k = (n² + n)/2, row-major vec."""
+    k = n + n_offdiag(n)
+    S = np.zeros((n * n, k))
+    S[np.arange(n) * (n + 1), np.arange(n)] = 1.0
+    rows, cols = np.tril_indices(n, -1)
+    S[rows * n + cols, n + np.arange(len(rows))] = 1.0
+    return S
 
 
 def lower_from_parts(diag, off):
@@ -39,19 +70,25 @@ def lower_from_parts(diag, off):
 
     ``diag`` has shape (n,); ``off`` has shape ((n² - n)/2,) and lists the strictly-lower
     entries row by row, ``[l10, l20, l21, l30, ...]``, the order of the paper's Fig. 2 and of
-    ``numpy.tril_indices(n, -1)``. Built from slices and concatenations only (no scatter).
+    ``numpy.tril_indices(n, -1)``. One product with a constant 0/1 selection matrix: no
+    scatter, and its transpose (the gradient) is one product too, no scatter-add.
     """
     n = diag.shape[-1]
     if off.shape[-1] != n_offdiag(n):
         raise ValueError(f"off must have {n_offdiag(n)} entries for n = {n}, got shape {off.shape}")
-    rows = []
-    for i in range(n):
-        start = i * (i - 1) // 2
-        parts = [off[start : start + i], diag[i : i + 1]]
-        if i < n - 1:
-            parts.append(jnp.zeros((n - 1 - i,), diag.dtype))
-        rows.append(jnp.concatenate(parts))
-    return jnp.stack(rows)
+    S = jnp.asarray(_selection(n), diag.dtype)
+    return (S @ jnp.concatenate([diag, off])).reshape(n, n)
+
+
+def parts_of_lower(G):
+    """(diag, strictly-lower entries row by row) of any n x n matrix G, by one product.
+
+    The transpose of :func:`lower_from_parts`: the upper triangle of G is ignored. Used to pull
+    a cotangent on L back onto the network outputs.
+    """
+    n = G.shape[0]
+    v = jnp.asarray(_selection(n), G.dtype).T @ G.reshape(n * n)
+    return v[:n], v[n:]
 
 
 def parts_from_lower(L):
@@ -61,13 +98,17 @@ def parts_from_lower(L):
     return jnp.diagonal(L), L[rows, cols]
 
 
-def solve_lower(L, b):
-    """Solve L x = b by forward substitution; L (n, n) lower triangular, b (n,) or (n, k)."""
+def solve_lower(L, b, inv_diag=None):
+    """Solve L x = b by forward substitution; L (n, n) lower triangular, b (n,) or (n, k).
+
+    ``inv_diag``: optional precomputed 1 / diag(L).
+    """
     n = L.shape[0]
+    inv_diag = 1.0 / jnp.diagonal(L) if inv_diag is None else inv_diag
     r = b
     xs = []
     for i in range(n):
-        xi = r[i] / L[i, i]
+        xi = r[i] * inv_diag[i]
         xs.append(xi)
         if i < n - 1:
             # remove column i's contribution from the remaining rows (row i itself becomes 0)
@@ -76,13 +117,17 @@ def solve_lower(L, b):
     return jnp.stack(xs)
 
 
-def solve_lower_transpose(L, b):
-    """Solve Lᵀ x = b by back substitution; L (n, n) lower triangular, b (n,) or (n, k)."""
+def solve_lower_transpose(L, b, inv_diag=None):
+    """Solve Lᵀ x = b by back substitution; L (n, n) lower triangular, b (n,) or (n, k).
+
+    ``inv_diag``: optional precomputed 1 / diag(L).
+    """
     n = L.shape[0]
+    inv_diag = 1.0 / jnp.diagonal(L) if inv_diag is None else inv_diag
     r = b
     xs = [None] * n
     for i in reversed(range(n)):
-        xi = r[i] / L[i, i]
+        xi = r[i] * inv_diag[i]
         xs[i] = xi
         if i > 0:
             # column i of Lᵀ is row i of L (entries below row i of Lᵀ are zero)
@@ -91,9 +136,32 @@ def solve_lower_transpose(L, b):
     return jnp.stack(xs)
 
 
+def _cho_solve_substitution(L, b):
+    inv_diag = 1.0 / jnp.diagonal(L)
+    return solve_lower_transpose(L, solve_lower(L, b, inv_diag), inv_diag)
+
+
 def cho_solve(L, b):
-    """Solve (L Lᵀ) x = b with two triangular solves; never forms an inverse."""
-    return solve_lower_transpose(L, solve_lower(L, b))
+    """Solve (L Lᵀ) x = b with two triangular solves; never forms an inverse.
+
+    Wrapped in ``lax.custom_linear_solve`` with the symmetric operator x -> L (Lᵀ x): derivatives
+    (forward and reverse, any order) are taken implicitly, dx = (L Lᵀ)⁻¹ (db - d(L Lᵀ) x), so
+    the substitution loops are never differentiated through; a reverse pass costs one more
+    pair of triangular solves. Only the lower triangle of L is read.
+    """
+    L = jnp.tril(L)
+
+    def matvec(x):
+        if x.ndim == 1:
+            return mv(L, mtv(L, x))
+        return L @ (L.T @ x)
+
+    return jax.lax.custom_linear_solve(
+        matvec,
+        b,
+        solve=lambda _, rhs: _cho_solve_substitution(L, rhs),
+        symmetric=True,
+    )
 
 
 def cho_inverse(L):

@@ -24,9 +24,10 @@ import jax
 import jax.numpy as jnp
 
 from .errors import UserError
-from .linalg import cho_inverse, cho_solve, cholesky
+from .linalg import cho_inverse, cho_solve, cholesky, mtv, mv
 from .nets import (
     ACTIVATIONS,
+    MLP,
     CholeskyField,
     ConstantCholesky,
     ConstantMatrix,
@@ -159,6 +160,38 @@ class ModelConfig:
         return cls(**kw)
 
 
+def _mass_terms(mass, q, v, *, tangent=True):
+    """(L, L̇ = dL/dq · v, ½ ∂‖L(q)ᵀ v‖²/∂q) for a mass-like field with factor(q) -> L.
+
+    Uses the field's fused ``factor_derivatives`` when it has one (one network pass, see
+    :meth:`learn.nets.CholeskyField.factor_derivatives`), else one ``jax.jvp`` and one
+    ``jax.vjp`` (analytic fields injected by tests).
+    """
+    if hasattr(mass, "factor_derivatives"):
+        return mass.factor_derivatives(q, v, tangent=tangent)
+    if tangent:
+        L, Ldot = jax.jvp(mass.factor, (q,), (v,))
+    else:
+        L, Ldot = mass.factor(q), None
+    _, vjp = jax.vjp(lambda q: mtv(mass.factor(q), v), q)
+    (g,) = vjp(mtv(L, v))
+    return L, Ldot, g
+
+
+def _apply(field, q, v):
+    """field(q) v, through the field's ``matvec`` when it has one (no matrix formed)."""
+    if hasattr(field, "matvec"):
+        return field.matvec(q, v)
+    return mv(field(q), v)
+
+
+def _potential_grad(potential, q):
+    """G(q) = ∂V/∂q."""
+    if hasattr(potential, "grad"):
+        return potential.grad(q)
+    return jax.grad(potential)(q)
+
+
 class DynamicsModel(eqx.Module):
     """A learned continuous-time dynamics model ẋ = f(x, u) for one sample."""
 
@@ -220,7 +253,7 @@ class _LagrangianBase(_PhysicsModel):
             "M": L @ L.T,
             "M_inv": cho_inverse(L),
             "D": self.damping(q),
-            "G": jax.grad(self.potential)(q),
+            "G": _potential_grad(self.potential, q),
             "A": self.input_map(q),
         }
 
@@ -239,20 +272,18 @@ class LagrangianNet(_LagrangianBase):
         M q̈ = A u - Ṁ q̇ + ½ ∂(q̇ᵀ M q̇)/∂q - ∂V/∂q - D q̇.
     M = Lc Lcᵀ comes from the Cholesky network, so with w = Lcᵀ q̇:
         Ṁ q̇ = L̇c w + Lc (L̇cᵀ q̇),  L̇c one Jacobian-vector product of the factor along q̇;
-        ½ ∂(q̇ᵀ M q̇)/∂q = ½ ∂‖Lc(q)ᵀ q̇‖²/∂q, the transpose of that same linearisation applied
-        to the cotangent q̇ wᵀ (one vector-Jacobian product, sharing the forward pass);
+        ½ ∂(q̇ᵀ M q̇)/∂q = ½ ∂‖Lc(q)ᵀ q̇‖²/∂q = Jᵀ(q̇ wᵀ), one vector-Jacobian product
+        (both from one forward pass of the mass network, :func:`_mass_terms`);
     and q̈ by two triangular solves with Lc (no inverse, no factorisation).
     """
 
     def qdd(self, q, qd, u):
         (q, qd, u) = self._cast(q, qd, u)
-        Lc, lin = jax.linearize(self.mass.factor, q)
-        Ldot = lin(qd)
-        w = Lc.T @ qd
-        mdot_qd = Ldot @ w + Lc @ (Ldot.T @ qd)
-        (dT_dq,) = jax.linear_transpose(lin, q)(jnp.outer(qd, w))
-        G = jax.grad(self.potential)(q)
-        rhs = self.input_map(q) @ u - mdot_qd + dT_dq - G - self.damping(q) @ qd
+        Lc, Ldot, dT_dq = _mass_terms(self.mass, q, qd)
+        w = mtv(Lc, qd)
+        mdot_qd = mv(Ldot, w) + mv(Lc, mtv(Ldot, qd))
+        G = _potential_grad(self.potential, q)
+        rhs = _apply(self.input_map, q, u) - mdot_qd + dT_dq - G - _apply(self.damping, q, qd)
         return cho_solve(Lc, rhs)
 
 
@@ -273,7 +304,7 @@ class LagrangianHessianNet(_LagrangianBase):
         H = jax.hessian(self.lagrangian, argnums=1)(q, qd)
         mixed = jax.jacfwd(jax.grad(self.lagrangian, argnums=1), argnums=0)(q, qd)
         dL_dq = jax.grad(self.lagrangian, argnums=0)(q, qd)
-        rhs = self.input_map(q) @ u - mixed @ qd + dL_dq - self.damping(q) @ qd
+        rhs = _apply(self.input_map, q, u) - mv(mixed, qd) + dL_dq - _apply(self.damping, q, qd)
         return cho_solve(cholesky(0.5 * (H + H.T)), rhs)
 
 
@@ -300,9 +331,10 @@ class HamiltonianNet(_PhysicsModel):
         (x, u) = self._cast(x, u)
         n = self.config.n
         q, p = x[:n], x[n:]
-        dH_dq, Lc = jax.grad(self._kinetic_and_potential, has_aux=True)(q, p)
-        qdot = Lc @ (Lc.T @ p)
-        pdot = -dH_dq - self.damping(q) @ qdot + self.input_map(q) @ u
+        Lc, _, dT_dq = _mass_terms(self.mass, q, p, tangent=False)
+        dH_dq = dT_dq + _potential_grad(self.potential, q)
+        qdot = mv(Lc, mtv(Lc, p))
+        pdot = -dH_dq - _apply(self.damping, q, qdot) + _apply(self.input_map, q, u)
         return jnp.concatenate([qdot, pdot])
 
     def matrices(self, q) -> dict:
@@ -313,7 +345,7 @@ class HamiltonianNet(_PhysicsModel):
             "M_inv": Lc @ Lc.T,
             "M": cho_inverse(Lc),
             "D": self.damping(q),
-            "G": jax.grad(self.potential)(q),
+            "G": _potential_grad(self.potential, q),
             "A": self.input_map(q),
         }
 
@@ -326,7 +358,7 @@ class HamiltonianNet(_PhysicsModel):
 class BlackBoxNet(DynamicsModel):
     """Black-box baseline (the paper's FNN): an MLP from [q, v, u] to the state derivative (2n)."""
 
-    mlp: eqx.nn.MLP
+    mlp: MLP
 
     @property
     def state_kind(self) -> str:

@@ -29,12 +29,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from .errors import UserError
-from .linalg import lower_from_parts, n_offdiag
+from .linalg import lower_from_parts, mtv, mv, n_offdiag, parts_of_lower
 
 __all__ = [
     "ACTIVATIONS",
     "activation_fn",
+    "softplus",
     "make_mlp",
+    "MLP",
     "CholeskyField",
     "ConstantCholesky",
     "ScalarField",
@@ -43,8 +45,34 @@ __all__ = [
     "ZeroMatrix",
 ]
 
+
+@jax.custom_jvp
+def softplus(x):
+    """log(1 + eˣ), written with few primitives; its derivative is the logistic σ(x)."""
+    return jnp.maximum(x, 0) + jnp.log1p(jnp.exp(-jnp.abs(x)))
+
+
+@softplus.defjvp
+def _softplus_jvp(primals, tangents):
+    (x,), (t,) = primals, tangents
+    return softplus(x), jax.nn.sigmoid(x) * t
+
+
+def _value_and_slope(name, z):
+    """(σ(z), σ'(z)) elementwise, explicit for the common activations."""
+    if name == "softplus":
+        return softplus(z), jax.nn.sigmoid(z)
+    if name == "tanh":
+        a = jnp.tanh(z)
+        return a, 1.0 - a * a
+    if name == "sigmoid":
+        a = jax.nn.sigmoid(z)
+        return a, a * (1.0 - a)
+    return jax.jvp(ACTIVATIONS[name], (z,), (jnp.ones_like(z),))
+
+
 ACTIVATIONS: dict[str, Callable] = {
-    "softplus": jax.nn.softplus,
+    "softplus": softplus,
     "tanh": jnp.tanh,
     "relu": jax.nn.relu,
     "silu": jax.nn.silu,
@@ -63,16 +91,67 @@ def activation_fn(name: str) -> Callable:
 
 
 def make_mlp(in_size, out_size, width: int, depth: int, activation: str, *, key, dtype):
-    """An ``eqx.nn.MLP``: ``depth`` hidden layers of ``width`` units, parameters in ``dtype``."""
-    return eqx.nn.MLP(
-        in_size=in_size,
-        out_size=out_size,
-        width_size=width,
-        depth=depth,
-        activation=activation_fn(activation),
-        key=key,
-        dtype=jnp.dtype(dtype),
-    )
+    """An :class:`MLP`: ``depth`` hidden layers of ``width`` units, parameters in ``dtype``."""
+    return MLP(in_size, out_size, width, depth, activation, key=key, dtype=dtype)
+
+
+class MLP(eqx.Module):
+    """A plain feed-forward network x -> W_d σ(... σ(W_0 x + b_0) ...) + b_d.
+
+    Besides the forward pass it offers :meth:`linearize` (value, Jacobian-vector product and
+    the activation slopes, in one pass) and :meth:`transpose` (vector-Jacobian product from those
+    slopes), so the structured models can get J v and Jᵀ g from ONE forward pass with shared
+    σ'(z). Initialisation as ``eqx.nn.Linear`` (uniform in ±1/sqrt(fan_in)).
+    """
+
+    weights: tuple[jax.Array, ...]
+    biases: tuple[jax.Array, ...]
+    activation: str = eqx.field(static=True)
+
+    def __init__(self, in_size, out_size, width, depth, activation, *, key, dtype="float64"):
+        activation_fn(activation)  # validate the name
+        dtype = jnp.dtype(dtype)
+        sizes = [in_size] + [width] * depth + [out_size]
+        keys = jax.random.split(key, len(sizes) - 1)
+        weights, biases = [], []
+        for k, fan_in, fan_out in zip(keys, sizes[:-1], sizes[1:], strict=True):
+            kw, kb = jax.random.split(k)
+            lim = 1.0 / np.sqrt(fan_in)
+            weights.append(jax.random.uniform(kw, (fan_out, fan_in), dtype, -lim, lim))
+            biases.append(jax.random.uniform(kb, (fan_out,), dtype, -lim, lim))
+        self.weights, self.biases = tuple(weights), tuple(biases)
+        self.activation = activation
+
+    @property
+    def out_size(self) -> int:
+        return self.weights[-1].shape[0]
+
+    def __call__(self, x):
+        act = ACTIVATIONS[self.activation]
+        h = x
+        for W, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
+            h = act(W @ h + b)
+        return self.weights[-1] @ h + self.biases[-1]
+
+    def linearize(self, x, v=None):
+        """(y, J v, slopes): output, its derivative along v (None: skipped), and σ'(z) per layer."""
+        h, hd, slopes = x, v, []
+        for W, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
+            z = W @ h + b
+            h, s = _value_and_slope(self.activation, z)
+            slopes.append(s)
+            if hd is not None:
+                hd = s * (W @ hd)
+        y = self.weights[-1] @ h + self.biases[-1]
+        yd = None if hd is None else self.weights[-1] @ hd
+        return y, yd, tuple(slopes)
+
+    def transpose(self, slopes, g):
+        """Jᵀ g at the point :meth:`linearize` was called with (reverse pass from its slopes)."""
+        g = self.weights[-1].T @ g
+        for W, s in zip(reversed(self.weights[:-1]), reversed(slopes), strict=True):
+            g = W.T @ (s * g)
+        return g
 
 
 class CholeskyField(eqx.Module):
@@ -82,7 +161,7 @@ class CholeskyField(eqx.Module):
     positive semi-definite damping matrix D (softplus keeps the diagonal non-negative).
     """
 
-    mlp: eqx.nn.MLP
+    mlp: MLP
     n: int = eqx.field(static=True)
     eps: float = eqx.field(static=True)
 
@@ -95,7 +174,32 @@ class CholeskyField(eqx.Module):
         """The lower-triangular factor L(q), shape (n, n)."""
         out = self.mlp(q)
         n = self.n
-        return lower_from_parts(jax.nn.softplus(out[:n]) + self.eps, out[n:])
+        return lower_from_parts(softplus(out[:n]) + self.eps, out[n:])
+
+    def factor_derivatives(self, q, v, *, tangent=True):
+        """(L, L̇, g) at q from ONE forward pass of the network:
+
+        L̇ = dL/dq · v (a Jacobian-vector product; None if ``tangent=False``) and
+        g = ½ ∂‖L(q)ᵀ v‖²/∂q = Jᵀ (the lower part of v wᵀ), w = Lᵀ v (a vector-Jacobian product).
+        ½ ‖Lᵀ v‖² = ½ vᵀ M v is the kinetic energy for M = L Lᵀ (eq. 6), or the Hamiltonian's
+        kinetic term for M⁻¹ = L Lᵀ and v = p (eq. 7).
+        """
+        n = self.n
+        out, out_dot, slopes = self.mlp.linearize(q, v if tangent else None)
+        d, sig = _value_and_slope("softplus", out[:n])
+        L = lower_from_parts(d + self.eps, out[n:])
+        Ldot = None
+        if tangent:
+            Ldot = lower_from_parts(sig * out_dot[:n], out_dot[n:])
+        w = mtv(L, v)
+        g_diag, g_off = parts_of_lower(jnp.outer(v, w))
+        g_out = jnp.concatenate([sig * g_diag, g_off])
+        return L, Ldot, self.mlp.transpose(slopes, g_out)
+
+    def matvec(self, q, v):
+        """U(q) v = L (Lᵀ v) without forming U."""
+        L = self.factor(q)
+        return mv(L, mtv(L, v))
 
     def __call__(self, q):
         L = self.factor(q)
@@ -117,7 +221,7 @@ class ConstantCholesky(eqx.Module):
     def factor(self, q):
         del q
         n = self.n
-        return lower_from_parts(jax.nn.softplus(self.raw[:n]) + self.eps, self.raw[n:])
+        return lower_from_parts(softplus(self.raw[:n]) + self.eps, self.raw[n:])
 
     def __call__(self, q):
         L = self.factor(q)
@@ -127,19 +231,19 @@ class ConstantCholesky(eqx.Module):
 class ScalarField(eqx.Module):
     """A scalar field of q, e.g. the potential energy V(q) (Fig. 4)."""
 
-    mlp: eqx.nn.MLP
+    mlp: MLP
 
     def __init__(self, n, width, depth, activation, *, key, dtype="float64"):
-        self.mlp = make_mlp(n, "scalar", width, depth, activation, key=key, dtype=dtype)
+        self.mlp = make_mlp(n, 1, width, depth, activation, key=key, dtype=dtype)
 
     def __call__(self, q):
-        return self.mlp(q)
+        return self.mlp(q)[0]
 
 
 class MatrixField(eqx.Module):
     """A matrix field A(q) in R^{rows x cols}: an MLP with rows*cols outputs, reshaped (Fig. 5)."""
 
-    mlp: eqx.nn.MLP
+    mlp: MLP
     shape: tuple[int, int] = eqx.field(static=True)
 
     def __init__(self, n, rows, cols, width, depth, activation, *, key, dtype="float64"):
