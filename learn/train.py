@@ -288,6 +288,26 @@ def _select(mask, new, old):
     return jax.tree.map(pick, new, old)
 
 
+def _over_members(fn, in_axes):
+    """``vmap(fn, in_axes)`` over the member axis, except for a single member, which is
+    squeezed out and put back: on CPU a vmapped (batched) matmul of batch 1 ran twice as slow as
+    the plain one (benchmarks/bench_train.py), and a vmapped line-search loop compiles twice as
+    long."""
+    vf = jax.vmap(fn, in_axes=in_axes)
+
+    def call(*args):
+        sizes = {
+            jax.tree.leaves(a)[0].shape[0] for a, ax in zip(args, in_axes, strict=True) if ax == 0
+        }
+        if sizes != {1}:
+            return vf(*args)
+        first = lambda t: jax.tree.map(lambda a: a[0], t)
+        out = fn(*(first(a) if ax == 0 else a for a, ax in zip(args, in_axes, strict=True)))
+        return jax.tree.map(lambda a: a[None], out)
+
+    return call
+
+
 def _stack(trees):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *trees)
 
@@ -342,7 +362,7 @@ class _Programs:
 
         @jax.jit
         def epoch_fn(params, opt_state, keys, epoch, active, lr, train):
-            new_p, new_s, loss = jax.vmap(one_epoch, in_axes=(0, 0, 0, None, None, None))(
+            new_p, new_s, loss = _over_members(one_epoch, (0, 0, 0, None, None, None))(
                 params, opt_state, keys, epoch, lr, train
             )
             return _select(active, new_p, params), _select(active, new_s, opt_state), loss
@@ -353,10 +373,10 @@ class _Programs:
         def weighted_sum(params, chunk, w):
             return jnp.sum(w * errors_of(eqx.combine(params, static), chunk))
 
-        self._eval_chunk = jax.jit(jax.vmap(weighted_sum, in_axes=(0, None, None)))
+        self._eval_chunk = jax.jit(_over_members(weighted_sum, (0, None, None)))
         self.eval_size = max(batch, 256)
         self._set_eval_data(train, test)
-        self.init_opt = jax.jit(jax.vmap(self.opt.init))
+        self.init_opt = jax.jit(_over_members(self.opt.init, (0,)))
 
         # L-BFGS on the full training set (optax.lbfgs with its zoom line search).
         lbfgs = optax.lbfgs()
@@ -378,17 +398,11 @@ class _Programs:
 
         @jax.jit
         def lbfgs_fn(params, state, active, train):
-            if active.shape[0] == 1:
-                # one member: no vmap (a vmapped line-search while-loop compiles twice as long)
-                first = lambda t: jax.tree.map(lambda a: a[0], t)
-                new_p, new_s, v = lbfgs_chunk(first(params), first(state), train)
-                new_p, new_s, v = jax.tree.map(lambda a: a[None], (new_p, new_s, v))
-            else:
-                new_p, new_s, v = jax.vmap(lbfgs_chunk, in_axes=(0, 0, None))(params, state, train)
+            new_p, new_s, v = _over_members(lbfgs_chunk, (0, 0, None))(params, state, train)
             return _select(active, new_p, params), _select(active, new_s, state), v
 
         self._lbfgs_fn = lbfgs_fn
-        self.lbfgs_init = jax.jit(jax.vmap(lbfgs.init))
+        self.lbfgs_init = jax.jit(_over_members(lbfgs.init, (0,)))
 
     def with_data(self, config, train, test) -> _Programs:
         """The same compiled functions for other arrays of the same shapes."""
