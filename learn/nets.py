@@ -21,6 +21,7 @@ The models only rely on this small protocol, so tests can inject analytic fields
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -95,6 +96,26 @@ def make_mlp(in_size, out_size, width: int, depth: int, activation: str, *, key,
     return MLP(in_size, out_size, width, depth, activation, key=key, dtype=dtype)
 
 
+@functools.partial(jax.jit, static_argnums=(1, 2))
+def _init_mlp(key, sizes, dtype):
+    """Weights and biases of an MLP, uniform in ±1/sqrt(fan_in).
+
+    One random draw for all parameters, one compiled call per shape (initialisation is cheap to
+    compile, which keeps tests and start-up fast), and it works under ``vmap`` over keys.
+    """
+    pairs = list(zip(sizes[:-1], sizes[1:], strict=True))
+    total = sum(fo * fi + fo for fi, fo in pairs)
+    u = jax.random.uniform(key, (total,), dtype, -1.0, 1.0)
+    weights, biases, start = [], [], 0
+    for fan_in, fan_out in pairs:
+        lim = float(1.0 / np.sqrt(fan_in))  # a Python float stays weakly typed
+        weights.append(lim * u[start : start + fan_out * fan_in].reshape(fan_out, fan_in))
+        start += fan_out * fan_in
+        biases.append(lim * u[start : start + fan_out])
+        start += fan_out
+    return tuple(weights), tuple(biases)
+
+
 class MLP(eqx.Module):
     """A plain feed-forward network x -> W_d σ(... σ(W_0 x + b_0) ...) + b_d.
 
@@ -110,16 +131,8 @@ class MLP(eqx.Module):
 
     def __init__(self, in_size, out_size, width, depth, activation, *, key, dtype="float64"):
         activation_fn(activation)  # validate the name
-        dtype = jnp.dtype(dtype)
-        sizes = [in_size] + [width] * depth + [out_size]
-        keys = jax.random.split(key, len(sizes) - 1)
-        weights, biases = [], []
-        for k, fan_in, fan_out in zip(keys, sizes[:-1], sizes[1:], strict=True):
-            kw, kb = jax.random.split(k)
-            lim = 1.0 / np.sqrt(fan_in)
-            weights.append(jax.random.uniform(kw, (fan_out, fan_in), dtype, -lim, lim))
-            biases.append(jax.random.uniform(kb, (fan_out,), dtype, -lim, lim))
-        self.weights, self.biases = tuple(weights), tuple(biases)
+        sizes = (int(in_size),) + (int(width),) * int(depth) + (int(out_size),)
+        self.weights, self.biases = _init_mlp(key, sizes, jnp.dtype(dtype).name)
         self.activation = activation
 
     @property
@@ -216,7 +229,7 @@ class ConstantCholesky(eqx.Module):
     def __init__(self, n, eps, *, key, dtype="float64", scale=0.1):
         self.n = int(n)
         self.eps = float(eps)
-        self.raw = scale * jax.random.normal(key, (n + n_offdiag(n),), jnp.dtype(dtype))
+        self.raw = float(scale) * jax.random.normal(key, (n + n_offdiag(n),), jnp.dtype(dtype))
 
     def factor(self, q):
         del q
@@ -260,7 +273,7 @@ class ConstantMatrix(eqx.Module):
     value: jax.Array
 
     def __init__(self, rows, cols, *, key, dtype="float64", scale=None):
-        scale = 1.0 / np.sqrt(max(cols, 1)) if scale is None else scale
+        scale = float(1.0 / np.sqrt(max(cols, 1))) if scale is None else float(scale)
         self.value = scale * jax.random.normal(key, (rows, cols), jnp.dtype(dtype))
 
     def __call__(self, q):

@@ -99,12 +99,7 @@ def _states(key, n, m, k):
 # --- eq. 6: structured == Hessian form ---------------------------------------------------------
 @pytest.mark.parametrize(
     "n,m,damping_form,activation",
-    [
-        (1, 0, "network", "softplus"),
-        (2, 1, "constant", "tanh"),
-        (3, 2, "network", "softplus"),
-        (6, 6, "none", "silu"),
-    ],
+    [(1, 0, "network", "softplus"), (3, 2, "constant", "tanh"), (6, 6, "none", "silu")],
 )
 def test_structured_lagrangian_equals_hessian_form(getkey, n, m, damping_form, activation):
     cfg = ModelConfig(
@@ -193,12 +188,18 @@ def test_power_balance_of_random_networks(getkey, kind):
         ModelConfig(kind=kind, n=n, m=m, mass=(16, 2), potential=(16, 2)), key=getkey()
     )
     x, u = _states(getkey(), n, m, 3)
-    for xi, ui in zip(x, u, strict=True):
+
+    @jax.jit
+    @jax.vmap
+    def balance(xi, ui):
         xdot = model.vector_field(xi, ui)
-        dE = jax.grad(model.energy)(xi) @ xdot
         mats = model.matrices(xi[:n])
         v = xdot[:n]
-        np.testing.assert_allclose(dE, v @ (mats["A"] @ ui - mats["D"] @ v), atol=1e-10)
+        return jax.grad(model.energy)(xi) @ xdot, v @ (mats["A"] @ ui - mats["D"] @ v)
+
+    dE, power = balance(x, u)
+    np.testing.assert_allclose(dE, power, atol=1e-10)
+    assert np.all(np.abs(power) > 1e-6)
 
 
 # --- all kinds: shapes, dtypes, matrices -------------------------------------------------------
@@ -209,14 +210,14 @@ def test_every_kind_builds_and_runs(getkey, kind, m):
     cfg = ModelConfig(kind=kind, n=n, m=m, mass=(8, 1), potential=(8, 1), hidden=(8, 1))
     model = make_model(cfg, key=getkey())
     x, u = _states(getkey(), n, m, 1)
-    xdot = model.vector_field(x[0], u[0])
+    xdot = jax.jit(lambda x, u: model.vector_field(x, u))(x[0], u[0])
     assert xdot.shape == (2 * n,) and xdot.dtype == jnp.float64
     assert model.state_kind == ("momentum" if kind == "hamiltonian" else "velocity")
     if kind == "blackbox":
         with pytest.raises(UserError, match="no physical matrices"):
             model.matrices(x[0, :n])
         return
-    mats = model.matrices(x[0, :n])
+    mats = jax.jit(lambda q: model.matrices(q))(x[0, :n])
     assert mats["A"].shape == (n, m) and mats["G"].shape == (n,)
     for name in ("M", "M_inv", "D"):
         assert mats[name].shape == (n, n)
@@ -228,10 +229,13 @@ def test_every_kind_builds_and_runs(getkey, kind, m):
 
 def test_float32_models_have_float32_parameters_and_outputs(getkey):
     for kind in ("lagrangian", "hamiltonian", "blackbox"):
-        model = make_model(ModelConfig(kind=kind, n=2, m=1, dtype="float32"), key=getkey())
+        cfg = ModelConfig(
+            kind=kind, n=2, m=1, mass=(8, 1), potential=(8, 1), hidden=(8, 1), dtype="float32"
+        )
+        model = make_model(cfg, key=getkey())
         leaves = jax.tree_util.tree_leaves(eqx.filter(model, eqx.is_array))
         assert leaves and all(leaf.dtype == jnp.float32 for leaf in leaves)
-        out = model.vector_field(np.ones(4), np.ones(1))  # float64 data is cast
+        out = jax.jit(type(model).vector_field)(model, np.ones(4), np.ones(1))  # f64 cast
         assert out.dtype == jnp.float32
 
 
@@ -240,15 +244,18 @@ def test_blackbox_state_kind_and_input_concatenation(getkey):
     model = make_model(cfg, key=getkey())
     assert isinstance(model, BlackBoxNet) and model.state_kind == "momentum"
     x, u = jnp.arange(4.0), jnp.array([0.5])
-    np.testing.assert_allclose(model.vector_field(x, u), model.mlp(jnp.array([0, 1, 2, 3, 0.5])))
+    got = jax.jit(lambda x, u: (model.vector_field(x, u), model.mlp(jnp.append(x, u))))(x, u)
+    np.testing.assert_allclose(got[0], got[1])
 
 
 def test_vmap_equals_loop(getkey):
-    model = make_model(ModelConfig(kind="lagrangian", n=3, m=1, mass=(16, 2)), key=getkey())
+    cfg = ModelConfig(kind="lagrangian", n=3, m=1, mass=(16, 2), potential=(16, 2))
+    model = make_model(cfg, key=getkey())
     x, u = _states(getkey(), 3, 1, 4)
-    batched = jax.vmap(model.vector_field)(x, u)
+    batched = jax.jit(jax.vmap(model.vector_field))(x, u)
+    one = jax.jit(lambda x, u: model.vector_field(x, u))
     for k in range(4):
-        np.testing.assert_allclose(batched[k], model.vector_field(x[k], u[k]), atol=1e-13)
+        np.testing.assert_allclose(batched[k], one(x[k], u[k]), atol=1e-13)
 
 
 # --- config -------------------------------------------------------------------------------------
