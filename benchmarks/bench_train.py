@@ -74,15 +74,6 @@ def bench_step(kind, n, m, batch, width, depth, steps, dtype, repeats):
     out = prog.epoch_fn(g.params, g.opt_state, g.keys, 0, active)
     _block(out)
     compile_s = time.perf_counter() - t
-    p, s = g.params, g.opt_state
-    times = []
-    for r in range(repeats):
-        t = time.perf_counter()
-        p, s, loss = prog.epoch_fn(p, s, g.keys, r + 1, active)
-        _block((p, loss))
-        times.append(time.perf_counter() - t)
-    scan_s = float(np.median(times)) / steps
-
     # one jitted call per minibatch (no scan), same loss and optimizer
     model = make_model(mc, key=jax.random.PRNGKey(0))
     params, static = eqx.partition(model, eqx.is_array)
@@ -98,14 +89,21 @@ def bench_step(kind, n, m, batch, width, depth, steps, dtype, repeats):
     batches = [jax.tree.map(lambda a, i=i: a[i * batch : (i + 1) * batch], pairs)
                for i in range(steps)]  # fmt: skip
     _block(one_step(params, state, batches[0]))
-    times = []
-    for _ in range(repeats):
+    # interleave the two so that load changes on a shared machine hit both alike
+    p, s = g.params, g.opt_state
+    scan_t, call_t = [], []
+    for r in range(repeats):
+        t = time.perf_counter()
+        p, s, loss = prog.epoch_fn(p, s, g.keys, r + 1, active)
+        _block((p, loss))
+        scan_t.append(time.perf_counter() - t)
         t = time.perf_counter()
         for b in batches:
             params, state, loss = one_step(params, state, b)
         _block((params, loss))
-        times.append(time.perf_counter() - t)
-    step_s = float(np.median(times)) / steps
+        call_t.append(time.perf_counter() - t)
+    scan_s = float(np.median(scan_t)) / steps
+    step_s = float(np.median(call_t)) / steps
     return {
         "kind": kind,
         "compile_epoch_s": round(compile_s, 2),
@@ -127,20 +125,19 @@ def bench_ensemble(kind, n, m, batch, width, depth, steps, K, repeats):
     tmp = Path(tempfile.gettempdir()) / "bench.eqx"
     seeds = list(range(K))
 
-    def timed(groups):
-        for g in groups:  # compile / warm up
-            _block(prog.epoch_fn(g.params, g.opt_state, g.keys, 0, jnp.ones(g.K, bool)))
-        times = []
-        for r in range(repeats):
+    seq_groups = [_Group(prog, [s], tmp, {}) for s in seeds]
+    vm_group = _Group(prog, seeds, tmp, {})
+    for g in [*seq_groups, vm_group]:  # compile / warm up
+        _block(prog.epoch_fn(g.params, g.opt_state, g.keys, 0, jnp.ones(g.K, bool)))
+    seq_t, vm_t = [], []
+    for r in range(repeats):  # interleaved
+        for groups, times in ((seq_groups, seq_t), ([vm_group], vm_t)):
             t = time.perf_counter()
             for g in groups:
                 out = prog.epoch_fn(g.params, g.opt_state, g.keys, r + 1, jnp.ones(g.K, bool))
                 _block(out)
             times.append(time.perf_counter() - t)
-        return float(np.median(times))
-
-    seq = timed([_Group(prog, [s], tmp, {}) for s in seeds])
-    vm = timed([_Group(prog, seeds, tmp, {})])
+    seq, vm = float(np.median(seq_t)), float(np.median(vm_t))
     return {
         "kind": kind,
         "seeds": K,

@@ -17,7 +17,14 @@ from learn.data import load_dataset
 from learn.errors import UserError
 from learn.models import make_model
 from learn.predict import evaluate
-from learn.train import TrainConfig, TrainingDiverged, load_ensemble, load_run, train
+from learn.train import (
+    _PROGRAM_CACHE,
+    TrainConfig,
+    TrainingDiverged,
+    load_ensemble,
+    load_run,
+    train,
+)
 
 
 def _leaves(model):
@@ -157,12 +164,17 @@ def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
 
 def test_existing_run_dir_needs_force(msd, tmp_path):
     cfg = blackbox_train_config(epochs=12)
+    train(msd, cfg, tmp_path / "first")
     out = tmp_path / "run"
     out.mkdir()
     (out / "notes.txt").write_text("keep me")
     with pytest.raises(UserError, match="already exists and is not empty; use --force"):
         train(msd, cfg, out)
+    before = {id(p): p._epoch_fn._cache_size() for p in _PROGRAM_CACHE.values()}
     train(msd, cfg, out, force=True)
+    # a second run of an already-compiled configuration traces nothing new
+    after = {id(p): p._epoch_fn._cache_size() for p in _PROGRAM_CACHE.values()}
+    assert before == after and len(before) >= 1
     assert (out / "notes.txt").read_text() == "keep me"
     assert (out / "model.eqx").is_file() and (out / "loss.png").is_file()
     rows = ckpt.read_history(out / "history.csv")
