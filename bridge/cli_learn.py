@@ -34,11 +34,18 @@ def register(subparsers) -> None:
     p.add_argument("--clip-norm", type=float, default=0.0, help="global gradient-norm clip")
     p.add_argument(
         "--loss",
-        choices=("pair", "accel"),
+        choices=("pair", "accel", "rollout"),
         default="pair",
-        help="pair: one RK4 step per pair, eq. 8/9; accel: eq. 10",
+        help="pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; rollout: eq. 8/9 averaged "
+        "over --rollout-steps steps",
     )
     p.add_argument("--loss-weight", type=float, default=1.0, help="lambda of eqs. 8/9")
+    p.add_argument(
+        "--rollout-steps",
+        type=int,
+        default=5,
+        help="steps per window of --loss rollout (multi-step loss)",
+    )
     p.add_argument("--substeps", type=int, default=1, help="RK4 sub-steps per pair")
     p.add_argument("--input-hold", choices=("constant", "linear"), default="constant")
     p.add_argument("--seed", type=int, default=0)
@@ -237,6 +244,7 @@ def cmd_train(args) -> int:
             clip_norm=args.clip_norm,
             loss=args.loss,
             loss_weight=args.loss_weight,
+            rollout_steps=args.rollout_steps,
             substeps=args.substeps,
             input_hold=args.input_hold,
             seed=args.seed,

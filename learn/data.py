@@ -309,6 +309,51 @@ def make_pairs(
     )
 
 
+class WindowData(NamedTuple):
+    """Windows of h + 1 consecutive samples of one trajectory (multi-step rollout loss); fields
+    match ``learn.losses.Windows``: x (B, h + 1, 2n), u (B, h + 1, m), t (B, h + 1)."""
+
+    x: np.ndarray
+    u: np.ndarray
+    t: np.ndarray
+
+    @property
+    def count(self) -> int:
+        return int(self.x.shape[0])
+
+
+def make_windows(
+    data: Dataset,
+    traj_ids,
+    *,
+    horizon: int,
+    state: str = "velocity",
+    samples: int | None = None,
+    seed: int = 0,
+) -> WindowData:
+    """Every window of ``horizon + 1`` consecutive samples inside one trajectory (a window
+    starts at each sample that has ``horizon`` successors in its trajectory); ``samples`` keeps
+    that many windows drawn at random with ``seed``."""
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+        raise UserError(f"--rollout-steps must be an integer >= 1, got {horizon!r}")
+    x = data.state(state)
+    starts = []
+    for tid in np.asarray(traj_ids).tolist():
+        rows = data.indices(int(tid))
+        if rows.size > horizon:
+            starts.append(rows[: rows.size - horizon])
+    if not starts:
+        raise UserError(
+            f"dataset file {data.path}: no trajectory of the chosen ones has {horizon + 1} "
+            "samples for a rollout window"
+        )
+    s0 = np.concatenate(starts)
+    if samples is not None and samples < s0.size:
+        s0 = np.sort(np.random.default_rng(seed).choice(s0, size=samples, replace=False))
+    idx = s0[:, None] + np.arange(horizon + 1)[None, :]
+    return WindowData(x=x[idx], u=data.u[idx], t=data.t[idx])
+
+
 def trajectories(data: Dataset, traj_ids, *, state: str = "velocity") -> list[dict]:
     """Whole trajectories as dicts of arrays ``t``, ``x`` (T, 2n), ``q``, ``u``, with ``id``."""
     x = data.state(state)

@@ -33,15 +33,32 @@ import numpy as np
 import optax
 
 from . import checkpoint as ckpt
-from .data import Dataset, PairData, load_dataset, make_pairs, split_trajectories
+from .data import (
+    Dataset,
+    PairData,
+    WindowData,
+    load_dataset,
+    make_pairs,
+    make_windows,
+    split_trajectories,
+)
 from .errors import UserError
-from .losses import Pairs, accel_errors, accel_loss, pair_errors, pair_loss
+from .losses import (
+    Pairs,
+    Windows,
+    accel_errors,
+    accel_loss,
+    pair_errors,
+    pair_loss,
+    rollout_errors,
+    rollout_loss,
+)
 from .models import ModelConfig, make_model
 
 FORMAT = "softpinn-run"
 FORMAT_VERSION = 1
 SCHEDULES = ("cosine", "exponential", "constant")
-LOSSES = ("pair", "accel")
+LOSSES = ("pair", "accel", "rollout")
 ENSEMBLE_MODES = ("auto", "vmap", "sequential")
 
 
@@ -61,7 +78,9 @@ class TrainConfig:
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
     ``clip_norm`` > 0 clips the global gradient norm.
     ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
-    ``input_hold`` "constant" or "linear") or "accel" (eq. 10; velocity data only).
+    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only) or "rollout"
+    (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
+    first state of windows of consecutive samples of one trajectory; minibatches of windows).
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
@@ -85,6 +104,7 @@ class TrainConfig:
     clip_norm: float = 0.0
     loss: str = "pair"
     loss_weight: float = 1.0
+    rollout_steps: int = 5
     substeps: int = 1
     input_hold: str = "constant"
     seed: int = 0
@@ -102,7 +122,15 @@ class TrainConfig:
     def __post_init__(self):
         if not isinstance(self.model, ModelConfig):
             raise UserError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
-        pos_int = ("epochs", "batch_size", "substeps", "seeds", "eval_every", "checkpoint_every")
+        pos_int = (
+            "epochs",
+            "batch_size",
+            "substeps",
+            "seeds",
+            "eval_every",
+            "checkpoint_every",
+            "rollout_steps",
+        )
         for name in pos_int + ("lbfgs_chunk",):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
@@ -191,6 +219,10 @@ class TrainResult:
 # ----------------------------------------------------------------------------------- helpers
 
 
+def _to_windows(w: WindowData, dtype) -> Windows:
+    return Windows(*(jnp.asarray(a, dtype) for a in w))
+
+
 def _to_pairs(p: PairData, dtype) -> Pairs:
     a = lambda x: None if x is None else jnp.asarray(x, dtype)
     return Pairs(a(p.x0), a(p.u0), a(p.u1), a(p.dt), a(p.x1), a(p.xdot0))
@@ -200,6 +232,15 @@ def loss_function(config: TrainConfig) -> Callable:
     """``loss(model, pairs) -> scalar`` of the configured kind (eq. 8/9 or eq. 10)."""
     if config.loss == "accel":
         return lambda model, pairs: accel_loss(model, pairs)
+    if config.loss == "rollout":
+        return lambda model, windows: rollout_loss(
+            model,
+            windows,
+            horizon=config.rollout_steps,
+            weight=config.loss_weight,
+            substeps=config.substeps,
+            input_hold=config.input_hold,
+        )
     return lambda model, pairs: pair_loss(
         model,
         pairs,
@@ -213,6 +254,15 @@ def errors_function(config: TrainConfig) -> Callable:
     """``errors(model, pairs) -> (B,)``: the per-pair terms whose mean is the loss."""
     if config.loss == "accel":
         return lambda model, pairs: accel_errors(model, pairs)
+    if config.loss == "rollout":
+        return lambda model, windows: rollout_errors(
+            model,
+            windows,
+            horizon=config.rollout_steps,
+            weight=config.loss_weight,
+            substeps=config.substeps,
+            input_hold=config.input_hold,
+        )
     return lambda model, pairs: pair_errors(
         model,
         pairs,
@@ -225,7 +275,8 @@ def errors_function(config: TrainConfig) -> Callable:
 def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
     """Split ``pairs`` into chunks of exactly ``size`` (the last padded with copies of the
     first pairs, weight 0), so that one compiled evaluation serves every set."""
-    n = pairs.x0.shape[0]
+    first = jax.tree.leaves(pairs)[0]
+    n = first.shape[0]
     pad = (-n) % size
     idx = np.concatenate([np.arange(n), np.arange(pad) % n])
     w = np.concatenate([np.ones(n), np.zeros(pad)])
@@ -233,7 +284,7 @@ def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
     for c in range((n + pad) // size):
         sl = idx[c * size : (c + 1) * size]
         chunks.append(jax.tree.map(lambda a, sl=sl: a[sl], pairs))
-        weights.append(jnp.asarray(w[c * size : (c + 1) * size], pairs.x0.dtype))
+        weights.append(jnp.asarray(w[c * size : (c + 1) * size], first.dtype))
     return chunks, weights
 
 
@@ -413,13 +464,13 @@ class _Programs:
         return new
 
     def epoch_fn(self, params, opt_state, keys, epoch, active):
-        lr = jnp.asarray(self.config.lr, self.train.x0.dtype)
+        lr = jnp.asarray(self.config.lr, jax.tree.leaves(self.train)[0].dtype)
         return self._epoch_fn(params, opt_state, keys, epoch, active, lr, self.train)
 
     def _set_eval_data(self, train, test):
         self._train_chunks = _chunked(train, self.eval_size)
         self._test_chunks = _chunked(test, self.eval_size)
-        self._n_eval = (train.x0.shape[0], test.x0.shape[0])
+        self._n_eval = (jax.tree.leaves(train)[0].shape[0], jax.tree.leaves(test)[0].shape[0])
 
     def _evaluate(self, params, chunks, count):
         total = sum(self._eval_chunk(params, c, w) for c, w in zip(*chunks, strict=True))
@@ -791,14 +842,22 @@ def train(
         data, test=config.test_trajectories, seed=config.split_seed
     )
     state = config.model.state_kind
-    train_np = make_pairs(
-        data, train_ids, state=state, samples=config.samples, seed=config.split_seed
-    )
-    test_np = make_pairs(data, test_ids, state=state)
-    if config.loss != "accel":
-        train_np = train_np._replace(xdot0=None)
-        test_np = test_np._replace(xdot0=None)
-    train_pairs, test_pairs = _to_pairs(train_np, dtype), _to_pairs(test_np, dtype)
+    if config.loss == "rollout":
+        h = config.rollout_steps
+        train_np = make_windows(
+            data, train_ids, horizon=h, state=state, samples=config.samples, seed=config.split_seed
+        )
+        test_np = make_windows(data, test_ids, horizon=h, state=state)
+        train_pairs, test_pairs = _to_windows(train_np, dtype), _to_windows(test_np, dtype)
+    else:
+        train_np = make_pairs(
+            data, train_ids, state=state, samples=config.samples, seed=config.split_seed
+        )
+        test_np = make_pairs(data, test_ids, state=state)
+        if config.loss != "accel":
+            train_np = train_np._replace(xdot0=None)
+            test_np = test_np._replace(xdot0=None)
+        train_pairs, test_pairs = _to_pairs(train_np, dtype), _to_pairs(test_np, dtype)
     batch = min(config.batch_size, train_np.count)
 
     prog = _programs(config, train_pairs, test_pairs, train_np.count, batch)

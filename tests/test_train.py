@@ -219,6 +219,10 @@ def test_lbfgs_finish_and_float32_and_accel(msd, tmp_path):
     res = train(msd, blackbox_train_config(loss="accel", lr=3e-2), tmp_path / "acc")
     h = res.members[0].history  # eq. 10: squared error of (q̇, q̈)
     assert h[-1]["test_loss"] < h[0]["test_loss"] / 5
+    res = train(msd, blackbox_train_config(loss="rollout", rollout_steps=4), tmp_path / "ro")
+    h = res.members[0].history  # multi-step loss over windows of 5 samples
+    assert h[-1]["test_loss"] < h[0]["test_loss"] / 2
+    assert res.metrics["pairs"]["train"] == 4 * (81 - 4)  # windows inside 4 trajectories
     with pytest.raises(UserError, match="needs velocity-state data"):
         blackbox_train_config(loss="accel", model=tiny_model_config("hamiltonian"))
 
