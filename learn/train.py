@@ -983,6 +983,8 @@ def _aggregate(members, mode, base) -> dict:
         "seconds": _mean_std([m.metrics["seconds"] for m in members]),
         "best_member": members[int(np.argmin(best))].seed,
         "pairs": base["pairs"],
+        "train_pairs": base["pairs"]["train"],
+        "test_pairs": base["pairs"]["test"],
         "members": [m.metrics for m in members],
     }
 
