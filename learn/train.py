@@ -556,6 +556,39 @@ def _mean_std(values) -> dict:
 # ---------------------------------------------------------------------------------- engine
 
 
+class _DeferredInterrupt:
+    """While training, the first Ctrl-C (SIGINT) lets the current epoch finish, then the loop
+    saves a checkpoint and raises KeyboardInterrupt; a second one interrupts at once. Only in the
+    main thread (elsewhere signal handlers cannot be set, and Ctrl-C raises as usual)."""
+
+    def __init__(self):
+        self.requested = False
+        self._old = None
+
+    def _handler(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            try:
+                self._old = signal.signal(signal.SIGINT, self._handler)
+            except (ValueError, OSError):
+                self._old = None
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+
 class _Group:
     """K members trained together as one stacked model (K = 1 for a single run)."""
 
@@ -674,9 +707,14 @@ class _Group:
         return bad_now
 
     def run(self, progress: Callable | None, label: str):
+        with _DeferredInterrupt() as stop:
+            self._run(progress, label, stop)
+
+    def _run(self, progress, label, stop):
         cfg = self.prog.config
         prog = self.prog
         t_last = time.perf_counter()
+        self.consistent = True
         try:
             if self.epoch == 0 and not any(self.history):
                 # epoch 0: the untrained model, on the full training and test sets
@@ -686,20 +724,26 @@ class _Group:
                 if progress is not None:
                     progress(self._progress_info(label, 0, tr0, te0, "adamw"))
             while not self.adam_done and self.epoch < cfg.epochs and self.active.any():
+                if stop.requested:
+                    raise KeyboardInterrupt
                 e = self.epoch + 1
                 prev_p, prev_s = self.params, self.opt_state
-                self.params, self.opt_state, tr = prog.epoch_fn(
+                new_p, new_s, tr = prog.epoch_fn(
                     self.params, self.opt_state, self.keys, self.epoch, jnp.asarray(self.active)
                 )
                 evaluate = e % cfg.eval_every == 0 or e == cfg.epochs
-                te = prog.eval_fn(self.params) if evaluate else None
+                te = prog.eval_fn(new_p) if evaluate else None
                 tr = np.asarray(tr)
                 te = None if te is None else np.asarray(te)
                 now = time.perf_counter()
+                # commit the epoch: the state is inconsistent until epoch = e
+                self.consistent = False
                 self.seconds += now - t_last
                 t_last = now
+                self.params, self.opt_state = new_p, new_s
                 bad_now = self._record(e, tr, te, "adamw", evaluate, prev_p, prev_s)
                 self.epoch = e
+                self.consistent = True
                 if bad_now.any():
                     self.save()
                     raise TrainingDiverged(self._diverged_message())
@@ -714,13 +758,18 @@ class _Group:
                 self.adam_done = True
                 self.save()
             if cfg.lbfgs_steps > self.lbfgs_done:
-                self._run_lbfgs(progress, label)
+                self._run_lbfgs(progress, label, stop)
         except KeyboardInterrupt:
-            self.save()
+            # save the last completed epoch; a second Ctrl-C in the middle of committing one
+            # leaves the previous checkpoint on disk
+            if self.consistent:
+                self.save()
             raise
 
-    def _run_lbfgs(self, progress, label):
+    def _run_lbfgs(self, progress, label, stop):
         cfg, prog = self.prog.config, self.prog
+        # an interrupted L-BFGS phase restarts from the best parameters so far
+        self.history = [[r for r in h if r["phase"] != "lbfgs"] for h in self.history]
         # start from the best AdamW parameters of every member that did not diverge
         ok = np.array([not s.startswith("diverged") for s in self.stopped])
         self.params = self.best
@@ -729,6 +778,8 @@ class _Group:
         t_last = time.perf_counter()
         done = 0
         while done < cfg.lbfgs_steps and active.any():
+            if stop.requested:
+                raise KeyboardInterrupt
             prev_p = self.params
             self.params, state, tr = prog.lbfgs_fn(self.params, state, jnp.asarray(active))
             done += cfg.lbfgs_chunk

@@ -4,6 +4,8 @@ runs, resume equals an uninterrupted run, interruption and divergence leave load
 from __future__ import annotations
 
 import dataclasses
+import os
+import signal
 
 import equinox as eqx
 import jax
@@ -160,6 +162,22 @@ def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
     # resuming with other options is refused
     with pytest.raises(UserError, match=r"--resume: the options differ .*\(epochs\)"):
         train(msd, dataclasses.replace(cfg, epochs=13), tmp_path / "part", resume=True)
+
+
+def test_ctrl_c_finishes_the_epoch_then_saves(msd, tmp_path):
+    cfg = blackbox_train_config()
+
+    def sigint_at_3(info):
+        if info["epoch"] == 3:
+            os.kill(os.getpid(), signal.SIGINT)  # like Ctrl-C while epoch 3 is reported
+
+    with pytest.raises(KeyboardInterrupt):
+        train(msd, cfg, tmp_path / "c", progress=sigint_at_3)
+    assert ckpt.read_header(tmp_path / "c" / "checkpoint.eqx")["epoch"] == 3
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handler restored
+    resumed = train(msd, None, tmp_path / "c", resume=True)
+    full = train(msd, cfg, tmp_path / "full")
+    assert_same_params(resumed.model, full.model, exact=True)
 
 
 def test_existing_run_dir_needs_force(msd, tmp_path):
