@@ -18,7 +18,7 @@ from learn.linalg import (
     solve_lower_transpose,
 )
 
-SIZES = [1, 2, 3, 6, 12]
+SIZES = [1, 2, 6, 12]
 
 
 def _random_lower(rng, n):
@@ -65,14 +65,14 @@ def test_construction_and_its_gradient_use_no_scatter():
 def test_triangular_solves_match_numpy(n):
     rng = np.random.default_rng(100 + n)
     L = _random_lower(rng, n)
+    L_upper_garbage = L + np.triu(rng.normal(size=(n, n)), 1)  # only the lower triangle is read
+    solves = jax.jit(lambda L, b: (solve_lower(L, b), solve_lower_transpose(L, b), cho_solve(L, b)))
     for b in (rng.normal(size=n), rng.normal(size=(n, 3))):
-        x = np.asarray(solve_lower(jnp.asarray(L), jnp.asarray(b)))
+        x, y, z = (np.asarray(a) for a in solves(jnp.asarray(L_upper_garbage), jnp.asarray(b)))
         np.testing.assert_allclose(x, np.linalg.solve(L, b), rtol=1e-12, atol=1e-12)
-        y = np.asarray(solve_lower_transpose(jnp.asarray(L), jnp.asarray(b)))
         np.testing.assert_allclose(y, np.linalg.solve(L.T, b), rtol=1e-12, atol=1e-12)
-        z = np.asarray(cho_solve(jnp.asarray(L), jnp.asarray(b)))
         np.testing.assert_allclose(z, np.linalg.solve(L @ L.T, b), rtol=1e-10, atol=1e-10)
-    Minv = np.asarray(cho_inverse(jnp.asarray(L)))
+    Minv = np.asarray(jax.jit(cho_inverse)(jnp.asarray(L)))
     np.testing.assert_allclose(Minv, np.linalg.inv(L @ L.T), rtol=1e-10, atol=1e-10)
     np.testing.assert_array_equal(Minv, Minv.T)
 
@@ -82,7 +82,7 @@ def test_cholesky_matches_numpy(n):
     rng = np.random.default_rng(200 + n)
     B = rng.normal(size=(n, n))
     A = B @ B.T + n * np.eye(n)
-    L = np.asarray(cholesky(jnp.asarray(A)))
+    L = np.asarray(jax.jit(cholesky)(jnp.asarray(A)))
     np.testing.assert_allclose(L, np.linalg.cholesky(A), rtol=1e-12, atol=1e-12)
     assert np.all(np.triu(L, 1) == 0.0)
 
@@ -92,12 +92,21 @@ def test_solves_vmap_and_differentiate():
     n, B = 4, 5
     Ls = np.stack([_random_lower(rng, n) for _ in range(B)])
     bs = rng.normal(size=(B, n))
-    x = np.asarray(jax.vmap(cho_solve)(jnp.asarray(Ls), jnp.asarray(bs)))
+    x = np.asarray(jax.jit(jax.vmap(cho_solve))(jnp.asarray(Ls), jnp.asarray(bs)))
     for k in range(B):
         np.testing.assert_allclose(x[k], np.linalg.solve(Ls[k] @ Ls[k].T, bs[k]), rtol=1e-10)
-    # gradient of a solve against central finite differences
+    # first and second derivatives of a solve (implicit, custom_linear_solve) against
+    # central finite differences, in forward and in reverse mode
     L0, b0 = jnp.asarray(Ls[0]), jnp.asarray(bs[0])
-    f = lambda s: jnp.sum(cho_solve(L0 * (1.0 + s * jnp.tril(jnp.ones((n, n)))), b0) ** 2)
-    h = 1e-6
-    fd = (f(h) - f(-h)) / (2 * h)
-    np.testing.assert_allclose(jax.grad(f)(0.0), fd, rtol=1e-6)
+    P = jnp.asarray(np.tril(rng.normal(size=(n, n))))
+
+    def f(s):
+        return jnp.sum(cho_solve(L0 + s * P, b0 * (1.0 + s)) ** 2)
+
+    h = 1e-4
+    d1 = jax.jit(jax.grad(f))
+    d2 = jax.jit(jax.jacfwd(jax.grad(f)))
+    fd1 = (f(h) - f(-h)) / (2 * h)
+    fd2 = (d1(h) - d1(-h)) / (2 * h)
+    np.testing.assert_allclose(d1(0.0), fd1, rtol=1e-6)
+    np.testing.assert_allclose(d2(0.0), fd2, rtol=1e-5)
