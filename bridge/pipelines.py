@@ -166,7 +166,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         if quick:
             m = dict(
                 mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2), hidden=(32, 2),
-                epochs=60 if task != "task5" else 25, lbfgs=0, lr=3e-3,
+                epochs=300 if task != "task5" else 100, lbfgs=50 if task != "task5" else 20,
+                lr=3e-3,
             )
         else:
             m = dict(
@@ -261,6 +262,7 @@ class _Stages:
 class ReproduceResult:
     """What :func:`reproduce` returns: paths and every figure it measured."""
 
+    config: ReproduceConfig
     out_dir: Path
     report: Path
     plan: Plan
@@ -333,7 +335,25 @@ def reproduce(
         "machine": machine_description(), "results": results,
     })
     log(f"report: {report}")
-    return ReproduceResult(out, report, plan, results, seconds)
+    return ReproduceResult(config, out, report, plan, results, seconds)
+
+
+def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:
+    """The configuration and output folder a task notebook uses, from the environment:
+    ``SOFTPINN_QUICK`` ("0" for the full run; default quick), ``SOFTPINN_OUT`` (default
+    ``runs/notebooks``), and ``SOFTPINN_EPOCHS`` / ``SOFTPINN_LBFGS`` to override the budgets
+    (the test suite runs the notebooks on the shortest budgets)."""
+    import os
+
+    quick = os.environ.get("SOFTPINN_QUICK", "1") != "0"
+    epochs = os.environ.get("SOFTPINN_EPOCHS")
+    lbfgs = os.environ.get("SOFTPINN_LBFGS")
+    config = ReproduceConfig(
+        task, quick=quick, epochs=int(epochs) if epochs else None,
+        lbfgs_steps=int(lbfgs) if lbfgs else None,
+    )
+    root = Path(os.environ.get("SOFTPINN_OUT", "runs/notebooks"))
+    return config, root / f"{task}{'-quick' if quick else ''}"
 
 
 def machine_description() -> str:
@@ -470,12 +490,15 @@ def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pa
     np.savez(folder / "rollouts.npz", **arrays)
 
     def stat(key, pick=lambda x: x):
-        vals = [pick(p[key]) for p in per_seed]
-        means = [float(np.mean(v)) for v in vals]
-        stds = [float(np.std(v)) for v in vals]
-        out = {"mean": float(np.mean(means)), "std": float(np.mean(stds))}
-        if len(per_seed) > 1:
-            out["seeds"] = {"mean": float(np.mean(means)), "std": float(np.std(means))}
+        # a rollout that blew up has error inf: the mean and std are then inf (not NaN)
+        vals = [np.asarray(pick(p[key]), float) for p in per_seed]
+        with np.errstate(invalid="ignore", over="ignore"):
+            means = [float(np.mean(v)) for v in vals]
+            stds = [float(np.std(v)) if np.all(np.isfinite(v)) else math.inf for v in vals]
+            out = {"mean": float(np.mean(means)), "std": float(np.mean(stds))}
+            if len(per_seed) > 1:
+                spread = float(np.std(means)) if np.all(np.isfinite(means)) else math.inf
+                out["seeds"] = {"mean": float(np.mean(means)), "std": spread}
         return out
 
     test_err = stat("long", lambda res: np.asarray([res.one_step_error["mean"]]))

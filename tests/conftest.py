@@ -26,6 +26,11 @@ def getkey():
     return _getkey
 
 
+#: The test suite runs the quick pipelines on even shorter budgets (the notebooks get the same
+#: through SOFTPINN_EPOCHS / SOFTPINN_LBFGS, so that they reuse these runs).
+QUICK_EPOCHS = 30
+
+
 @pytest.fixture(scope="session")
 def quick_runs(tmp_path_factory):
     """``get(task)`` runs ``reproduce(task, quick=True)`` once per session into a shared folder
@@ -37,7 +42,8 @@ def quick_runs(tmp_path_factory):
         if task not in cache:
             from bridge.pipelines import ReproduceConfig, reproduce
 
-            cache[task] = reproduce(ReproduceConfig(task, quick=True), root / f"{task}-quick")
+            config = ReproduceConfig(task, quick=True, epochs=QUICK_EPOCHS, lbfgs_steps=0)
+            cache[task] = reproduce(config, root / f"{task}-quick")
         return cache[task]
 
     get.root = root

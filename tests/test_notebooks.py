@@ -9,6 +9,8 @@ import nbformat
 import pytest
 from nbclient import NotebookClient
 
+from conftest import QUICK_EPOCHS
+
 NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("task*.ipynb"))
 
 pytestmark = pytest.mark.timeout(900)
@@ -20,9 +22,11 @@ def test_one_notebook_per_task():
 
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
 def test_notebook_executes(path, quick_runs, monkeypatch):
-    quick_runs(path.stem)  # the notebook then finds every stage done
+    quick_runs(path.stem)  # the notebook then finds every stage done and only reports
     monkeypatch.setenv("SOFTPINN_OUT", str(quick_runs.root))
     monkeypatch.setenv("SOFTPINN_QUICK", "1")
+    monkeypatch.setenv("SOFTPINN_EPOCHS", str(QUICK_EPOCHS))
+    monkeypatch.setenv("SOFTPINN_LBFGS", "0")
     monkeypatch.setenv("MPLBACKEND", "Agg")
     nb = nbformat.read(path, as_version=4)
     NotebookClient(nb, timeout=600, kernel_name="python3",

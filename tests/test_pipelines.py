@@ -68,7 +68,7 @@ def test_second_call_skips_finished_stages(quick_runs):
     done = sorted(first.out_dir.glob("**/done.json"))
     stamps = [p.stat().st_mtime_ns for p in done]
     lines = []
-    again = reproduce(ReproduceConfig("task1", quick=True), first.out_dir, log=lines.append)
+    again = reproduce(first.config, first.out_dir, log=lines.append)
     assert [p.stat().st_mtime_ns for p in done] == stamps
     assert sum("skipped" in line for line in lines) == len(done)
     a = first.results["variants"]["main"]["models"]["lagrangian"]["predict"]
