@@ -186,14 +186,16 @@ class _Bar:
     """tqdm progress bar (stderr) driven by the training callback."""
 
     def __init__(self, total: int, disable: bool):
-        from tqdm.auto import tqdm
-
-        self.bar = tqdm(
-            total=total, file=sys.stderr, disable=disable, unit="epoch", dynamic_ncols=True
-        )
+        self.total, self.disable = total, disable
+        self.bar = None  # drawn at the first epoch, so that an early error prints alone
         self.last = {}
 
     def __call__(self, info: dict):
+        if self.bar is None:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(total=self.total, file=sys.stderr, disable=self.disable,
+                            unit="epoch", dynamic_ncols=True)
         key = info["label"]
         prev = self.last.get(key, 0)
         if info["phase"] == "adamw":
@@ -208,7 +210,8 @@ class _Bar:
         self.bar.set_postfix(post, refresh=False)
 
     def close(self):
-        self.bar.close()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def cmd_train(args) -> int:
