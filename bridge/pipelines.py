@@ -46,16 +46,26 @@ PHYSICS_KINDS = ("lagrangian", "hamiltonian")
 #: tables and in Table III; we converge faster rather than train longer): epochs of AdamW,
 #: then L-BFGS iterations on the full training set.
 FULL_BUDGETS: dict[str, dict[str, dict[str, int]]] = {
-    "task1": {"lagrangian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
-    "task2": {"lagrangian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
-    "task3": {"hamiltonian": {"epochs": 1500, "lbfgs": 200}, "blackbox": {"epochs": 1500}},
+    "task1": {"lagrangian": {"epochs": 300}, "blackbox": {"epochs": 300}},
+    "task2": {"lagrangian": {"epochs": 300}, "blackbox": {"epochs": 300}},
+    "task3": {"hamiltonian": {"epochs": 300}, "blackbox": {"epochs": 300}},
     "task4": {
-        "lagrangian": {"epochs": 600, "lbfgs": 100},
-        "hamiltonian": {"epochs": 600, "lbfgs": 100},
-        "blackbox": {"epochs": 600},
+        "lagrangian": {"epochs": 150},
+        "hamiltonian": {"epochs": 150},
+        "blackbox": {"epochs": 150},
     },
-    "task5": {"lagrangian": {"epochs": 150, "lbfgs": 50}, "blackbox": {"epochs": 150}},
+    "task5": {"lagrangian": {"epochs": 40}, "blackbox": {"epochs": 40}},
 }
+
+#: Minibatch size of full runs. The paper used 500-1200; on the mass-spring-damper, batches of
+#: 64 with a cosine schedule reached a test loss of 1e-8 in 150 epochs (60 s) where batches of
+#: 1000 with an L-BFGS finish stalled at 7e-5 (benchmarks/bench_train.py measures the same).
+FULL_BATCH = {"task5": 256}
+DEFAULT_BATCH = 64
+
+#: The paper's smallest networks (4 wide for Task 1) did not reach its losses in our budgets;
+#: mass and potential networks get at least this width (Table III's sizes are in the report).
+MIN_WIDTH = 32
 
 #: Step sizes other than the data's for the rollouts of Figs. 24-25 (task1: 0.1 s, task2:
 #: 0.15 s, task3: 0.1 s as in Figs. 25, 31, 37), and a multiple of the data step elsewhere.
@@ -166,8 +176,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         if quick:
             m = dict(
                 mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2), hidden=(32, 2),
-                epochs=300 if task != "task5" else 100, lbfgs=50 if task != "task5" else 20,
-                lr=3e-3,
+                epochs=300 if task != "task5" else 60, lbfgs=0, lr=3e-3,
             )
         else:
             m = dict(
@@ -179,8 +188,10 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
                 input=_size(training, kind if kind != "blackbox" else physics[0], "input",
                             (16, 2)),
                 hidden=_size(training, "blackbox", "hidden", (128, 3)),
-                epochs=int(budget["epochs"]), lbfgs=int(budget.get("lbfgs", 0)), lr=3e-3,
+                epochs=int(budget["epochs"]), lbfgs=int(budget.get("lbfgs", 0)), lr=2e-3,
             )
+            for net in ("mass", "potential"):
+                m[net] = (max(m[net][0], MIN_WIDTH), m[net][1])
         m["paper_epochs"] = int(dict(training.get(kind, {})).get("epochs", 0)) or None
         if config.epochs is not None:
             m["epochs"] = config.epochs
@@ -198,7 +209,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         fixed_step=fixed_step,
         variants=variants,
         models=models,
-        batch_size=int(training.get("batch_size", 1000)) if not quick else 256,
+        batch_size=FULL_BATCH.get(task, DEFAULT_BATCH),
         horizon=horizon,
         long_horizon=min(3 * horizon, float(data["duration"])),
         other_dt=other_dt,
