@@ -84,7 +84,9 @@ def test_plans_follow_the_paper():
     assert full["task5"].horizon == 10.0
     assert [v.name for v in full["task5"].variants] == [
         "fixed_0.0002s", "50Hz", "100Hz", "1000Hz"]
-    assert full["task4"].models["lagrangian"]["mass"] == (30, 3)
+    assert full["task4"].models["lagrangian"]["mass"] == (32, 3)  # Table III: 30*3, widened
+    assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
+    assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000
     assert full["task1"].other_dt == 0.1 and full["task2"].other_dt == 0.15
     quick = make_plan(load_spec("task2"), ReproduceConfig("task2", quick=True, epochs=7))
