@@ -311,3 +311,18 @@ def test_matrix_stack_fills_mass_from_inverse(true):
     stack = MatrixStack(M_inv=Minv, name="learned")
     np.testing.assert_allclose(stack.mass(), true["M"][:4], rtol=1e-10)
     assert stack.N == 4 and stack.n == 3 and stack.m is None
+
+
+@pytest.mark.parametrize("fit", [fit_joint, fit_constant, fit_alpha])
+def test_zero_true_block_is_left_out_of_joint_fits(q, true, fit):
+    """An undamped system (Task 2: D = 0) with a slightly damped learned model: the learned D̂
+    must not pull P away from the transform that maps M and G (it did, weighted by 1/||D̂||)."""
+    alpha = 0.5
+    t = {k: v.copy() for k, v in true.items()}
+    t["D"] = np.zeros_like(t["D"])
+    learned = {k: alpha * v for k, v in t.items()}
+    learned["D"] = 1e-3 * np.broadcast_to(np.eye(N_DOF), t["D"].shape).copy()
+    res = fit(t, learned, q)
+    assert "D" not in res.residual
+    assert res.residual["M"] < 1e-12 and res.residual["G"] < 1e-12
+    assert abs(res.alpha - alpha) < 1e-12
