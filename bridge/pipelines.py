@@ -248,6 +248,8 @@ class _Stages:
     def __init__(self, out: Path, log: Callable[[str], None]):
         self.out = out
         self.log = log
+        self.seconds: dict[str, float] = {}  # per stage, as measured when it ran
+        self.ran: set[str] = set()  # the stages this call ran (not reused)
 
     def run(self, name: str, settings: Mapping[str, Any], fn: Callable[[Path], Any]) -> Any:
         folder = self.out / name
@@ -257,6 +259,7 @@ class _Stages:
             stored = json.loads(done.read_text())
             if stored.get("settings") == settings:
                 self.log(f"[{name}] done before, skipped")
+                self.seconds[name] = float(stored.get("seconds", 0.0))
                 return stored["result"]
         folder.mkdir(parents=True, exist_ok=True)
         self.log(f"[{name}] ...")
@@ -265,6 +268,8 @@ class _Stages:
         seconds = time.perf_counter() - t0
         result = json.loads(json.dumps(result, default=_jsonable))
         _write_json(done, {"settings": settings, "result": result, "seconds": seconds})
+        self.seconds[name] = seconds
+        self.ran.add(name)
         self.log(f"[{name}] {seconds:.1f} s")
         return result
 
@@ -337,7 +342,12 @@ def reproduce(
             log(f"{key}: test {pr['test_error']['mean']:.3e}, rollout "
                 f"{pr['prediction_error']['mean']:.3e} over {plan.horizon:g} s")
         results["variants"][variant.name] = vres
-    seconds = time.perf_counter() - t_start
+    # the run's time is that of its stages when they ran (a call that reuses finished stages
+    # reports what they took then), plus this call's own overhead
+    seconds = sum(stages.seconds.values()) + (
+        time.perf_counter() - t_start - sum(
+            v for k, v in stages.seconds.items() if k in stages.ran))
+    results["stage_seconds"] = dict(stages.seconds)
     from .report import write_task_report
 
     report = write_task_report(spec, plan, results, out, seconds=seconds)
