@@ -19,6 +19,7 @@ import numpy as np
 from .tables import format_mean_std, table_iii_comparison, to_markdown, write_table
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
+_COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
 
 
 def _model_size(kind: str, m: dict) -> str:
@@ -205,14 +206,15 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
                 for i in range(qt.shape[1]):
                     axes[0].plot(t, qt[:, i], "k-", lw=1.5, label="truth" if i == 0 else None)
             style = "--" if k != "blackbox" else "^"
+            color = _COLORS.get(k, "C2")
+            kw = {"markevery": max(1, len(t) // 25), "ms": 4} if style == "^" else {}
             for i in range(qp.shape[1]):
-                kw = {"markevery": max(1, len(t) // 25), "ms": 4} if style == "^" else {}
-                axes[0].plot(t, qp[:, i], style, lw=1.2,
+                axes[0].plot(t, qp[:, i], style, lw=1.2, color=color,
                              label=_NETWORK[k] if i == 0 else None, **kw)
-            err = np.abs(qp - qt)
-            axes[1].semilogy(t, np.maximum(err.max(axis=1), 1e-16), style, lw=1.2,
-                             label=_NETWORK[k], **({"markevery": max(1, len(t) // 25), "ms": 4}
-                                                    if style == "^" else {}))
+            # the error from the first step on (it is zero at the shared initial state)
+            err = np.abs(qp - qt)[1:].max(axis=1)
+            axes[1].semilogy(t[1:], np.maximum(err, 1e-16), style, lw=1.2, color=color,
+                             label=_NETWORK[k], **kw)
             any_ = True
         if not any_:
             plt.close(fig)
