@@ -9,7 +9,7 @@ Prints one JSON object:
   from the seed text below) through every transform: is the printed P equal to M M^-1, and
   how well does one P(q) map M^, D^, G^, A^ onto M, D, G, A at the printed precision?
 
-Usage: ``python benchmarks/bridge_transforms.py [--N 1000]``
+Usage: ``python benchmarks/bench_bridge.py [--N 1000]``
 """
 
 from __future__ import annotations

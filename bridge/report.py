@@ -186,7 +186,7 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
                                  title=f"{plan.task} {vname}: loss (train solid, test dashed)")
     lines += [f"![loss curves]({_rel(loss_path, out)})", ""]
     rolls = {}
-    for k, e in models.items():
+    for k in models:
         path = Path(out) / "predict" / vname / k / "rollouts.npz"
         if path.is_file():
             with np.load(path) as z:
@@ -235,15 +235,13 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
                  "|---|---|---|---|"]
     for k, e in models.items():
         pr = e["predict"]
-        err_lines.append(
-            f"| {_NETWORK[k]} | "
-            f"{format_mean_std(pr['prediction_error']['mean'], pr['prediction_error']['std'])}"
-            f" ({pr['prediction_error']['horizon_s']:g} s) | "
-            f"{format_mean_std(pr['long_prediction_error']['mean'], pr['long_prediction_error']['std'])}"
-            f" ({pr['long_prediction_error']['horizon_s']:g} s) | "
-            f"{format_mean_std(pr['other_dt_prediction_error']['mean'], pr['other_dt_prediction_error']['std'])}"
-            f" (dt {pr['other_dt_prediction_error']['dt']:g} s) |"
-        )
+        cells = []
+        for key, what in (("prediction_error", None), ("long_prediction_error", None),
+                          ("other_dt_prediction_error", "dt")):
+            v = pr[key]
+            where = f"dt {v['dt']:g} s" if what else f"{v['horizon_s']:g} s"
+            cells.append(f"{format_mean_std(v['mean'], v['std'])} ({where})")
+        err_lines.append(f"| {_NETWORK[k]} | " + " | ".join(cells) + " |")
     return lines + err_lines + [""]
 
 

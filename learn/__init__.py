@@ -5,7 +5,7 @@ Core API::
 
     from learn import ModelConfig, TrainConfig, train, load_run, predict
     config = TrainConfig(ModelConfig(kind="lagrangian", n=2, m=0), epochs=300)
-    result = train("data.npz", config, "runs/lnn")       # run directory: config.json, model.eqx, ...
+    result = train("data.npz", config, "runs/lnn")       # writes config.json, model.eqx, ...
     run = load_run("runs/lnn"); run.model.matrices(q)     # learned M, D, G, A at q
     predict("runs/lnn", "data.npz", horizon=2.7)          # one-step and rollout errors
 """
