@@ -228,48 +228,26 @@ def _to_pairs(p: PairData, dtype) -> Pairs:
     return Pairs(a(p.x0), a(p.u0), a(p.u1), a(p.dt), a(p.x1), a(p.xdot0))
 
 
-def loss_function(config: TrainConfig) -> Callable:
-    """``loss(model, pairs) -> scalar`` of the configured kind (eq. 8/9 or eq. 10)."""
+def _configured(config: TrainConfig, accel: Callable, rollout: Callable, pair: Callable):
+    """The one of ``accel``, ``rollout``, ``pair`` that ``config.loss`` names, with its options."""
     if config.loss == "accel":
-        return lambda model, pairs: accel_loss(model, pairs)
+        return lambda model, pairs: accel(model, pairs)
+    kw = dict(weight=config.loss_weight, substeps=config.substeps, input_hold=config.input_hold)
     if config.loss == "rollout":
-        return lambda model, windows: rollout_loss(
-            model,
-            windows,
-            horizon=config.rollout_steps,
-            weight=config.loss_weight,
-            substeps=config.substeps,
-            input_hold=config.input_hold,
+        return lambda model, windows: rollout(
+            model, windows, horizon=config.rollout_steps, **kw
         )
-    return lambda model, pairs: pair_loss(
-        model,
-        pairs,
-        weight=config.loss_weight,
-        substeps=config.substeps,
-        input_hold=config.input_hold,
-    )
+    return lambda model, pairs: pair(model, pairs, **kw)
+
+
+def loss_function(config: TrainConfig) -> Callable:
+    """``loss(model, pairs) -> scalar`` of the configured kind (eq. 8/9, eq. 10 or rollout)."""
+    return _configured(config, accel_loss, rollout_loss, pair_loss)
 
 
 def errors_function(config: TrainConfig) -> Callable:
     """``errors(model, pairs) -> (B,)``: the per-pair terms whose mean is the loss."""
-    if config.loss == "accel":
-        return lambda model, pairs: accel_errors(model, pairs)
-    if config.loss == "rollout":
-        return lambda model, windows: rollout_errors(
-            model,
-            windows,
-            horizon=config.rollout_steps,
-            weight=config.loss_weight,
-            substeps=config.substeps,
-            input_hold=config.input_hold,
-        )
-    return lambda model, pairs: pair_errors(
-        model,
-        pairs,
-        weight=config.loss_weight,
-        substeps=config.substeps,
-        input_hold=config.input_hold,
-    )
+    return _configured(config, accel_errors, rollout_errors, pair_errors)
 
 
 def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
