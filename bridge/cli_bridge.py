@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
+from .cli_learn import _enable_x64
 from .errors import UserError
 
 
@@ -51,12 +52,6 @@ def register(subparsers) -> None:
     r.add_argument("--float32", action="store_true", help="train in float32")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=cmd_reproduce)
-
-
-def _enable_x64():
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
 
 
 def cmd_analyze(args) -> int:
