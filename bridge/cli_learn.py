@@ -86,6 +86,13 @@ def register(subparsers) -> None:
     p.add_argument("--input-form", choices=("network", "constant"), default="network")
     p.add_argument("--eps", type=float, default=1e-3, help="Cholesky diagonal shift of M")
     p.add_argument(
+        "--mass-init",
+        default=None,
+        metavar="X|data",
+        help="initial diagonal of M (Lagrangian) or M^-1 (Hamiltonian); 'data': from the "
+        "data's rms(p)/rms(qd) per coordinate (use it when masses are far from 1)",
+    )
+    p.add_argument(
         "--state",
         choices=("velocity", "momentum"),
         default=None,
@@ -150,7 +157,8 @@ def _enable_x64():
     jax.config.update("jax_enable_x64", True)
 
 
-def _model_config(args, n: int, m: int):
+def _model_config(args, n: int, m: int, data=None):
+    from learn.data import mass_scale
     from learn.errors import UserError
     from learn.models import ModelConfig
 
@@ -169,6 +177,18 @@ def _model_config(args, n: int, m: int):
         kw[net] = (w, d)
     if args.state is not None:
         kw["state_kind"] = args.state
+    if args.mass_init is not None:
+        if args.model == "blackbox":
+            raise UserError("--mass-init applies to physics models, not --model blackbox")
+        if args.mass_init == "data":
+            kw["mass_init"] = mass_scale(data, args.model)
+        else:
+            try:
+                kw["mass_init"] = float(args.mass_init)
+            except ValueError:
+                raise UserError(
+                    f"--mass-init: expected a number or 'data', got {args.mass_init!r}"
+                ) from None
     return ModelConfig(
         kind=args.model,
         n=n,
@@ -233,7 +253,7 @@ def cmd_train(args) -> int:
         data = load_dataset(args.data, n=config.model.n, m=config.model.m)
     else:
         data = load_dataset(args.data)
-        mc = _model_config(args, data.n, data.m)
+        mc = _model_config(args, data.n, data.m, data)
         test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
         config = TrainConfig(
             model=mc,

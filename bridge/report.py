@@ -69,6 +69,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
         "mean squared error of q over a rollout from the true initial state with the true "
         "inputs, mean ± std over test trajectories.",
         "",
+        _integration_sentence(plan),
+        "",
     ]
     physics_kinds = [k for k in plan.models if k != "blackbox"]
     for vname, vres in results["variants"].items():
@@ -95,6 +97,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
             stem = f"table_iii_{vname}_{kind}"
             write_table(table, out / "tables", stem)
             lines += [to_markdown(table), ""]
+        lines += _floor_lines(models)
         lines += _variant_figures(plan, vname, models, fig_dir, out)
     if plan.task == "task5":
         lines += _rate_figure(plan, results, fig_dir, out)
@@ -116,6 +119,35 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
     tmp.write_text("\n".join(lines))
     os.replace(tmp, path)
     return path
+
+
+def _floor_lines(models: dict) -> list[str]:
+    """The integration floor of each model beside its test loss (bridge/floors.py)."""
+    cells = []
+    for kind, entry in models.items():
+        fl = entry.get("floor")
+        if fl is None:
+            continue
+        test = entry["predict"]["test_error"]["mean"]
+        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)})")
+    if not cells:
+        return []
+    return [
+        "Floor of the one-step loss: the true model stepped exactly as the networks are, on "
+        "the same test pairs. A test loss near it is limited by the integration, not the "
+        "network. " + "; ".join(cells) + ".",
+        "",
+    ]
+
+
+def _integration_sentence(plan) -> str:
+    """How the models step over one data interval (the same for training and prediction)."""
+    first = next(iter(plan.models.values()))
+    sub = int(first.get("substeps", 1))
+    hold = first.get("input_hold", "constant")
+    how = "held constant" if hold == "constant" else "interpolated linearly"
+    return (f"Every model is integrated by RK4 with {sub} step{'s' if sub > 1 else ''} per data "
+            f"interval, inputs {how} between samples, in training and in prediction.")
 
 
 def _rel(path: Path, out: Path) -> str:

@@ -75,6 +75,25 @@ class Dataset:
         return None
 
 
+def mass_scale(data: Dataset, kind: str, traj_ids=None) -> float:
+    """A data-derived initial diagonal for the mass network (``ModelConfig.mass_init``).
+
+    p = M q̇, so per coordinate rms(pᵢ) / rms(q̇ᵢ) is the scale of M's diagonal and its inverse
+    that of M⁻¹'s; the median over coordinates for a "lagrangian" model (M) or a "hamiltonian"
+    one (M⁻¹), over the given trajectories (None: all). 1.0 when the data cannot say (p or q̇
+    identically zero).
+    """
+    if kind not in ("lagrangian", "lagrangian-hessian", "hamiltonian"):
+        raise UserError(f"mass_scale: kind must be a physics model kind, got {kind!r}")
+    keep = slice(None) if traj_ids is None else np.isin(data.traj, np.asarray(traj_ids))
+    rms_qd = np.sqrt(np.mean(data.qd[keep] ** 2, axis=0))
+    rms_p = np.sqrt(np.mean(data.p[keep] ** 2, axis=0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = rms_qd / rms_p if kind == "hamiltonian" else rms_p / rms_qd
+    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+    return float(np.median(ratio)) if ratio.size else 1.0
+
+
 class PairData(NamedTuple):
     """Training pairs as numpy arrays; fields match ``learn.losses.Pairs``.
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import abc
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -79,9 +80,12 @@ class ModelConfig:
     eq. 6, a reference), "hamiltonian" (eq. 7) or "blackbox" (MLP baseline). ``n`` coordinates,
     ``m`` inputs (0: unactuated, no A network). Layer sizes are (width, depth) with depth hidden
     layers. ``eps`` shifts the diagonal of M's (or M⁻¹'s) Cholesky factor (Fig. 2).
-    ``state_kind`` matters only for the black box ("velocity": x = (q, q̇), "momentum": x =
-    (q, p)); the physics models fix it (Lagrangian: velocity, Hamiltonian: momentum) and
-    ``None`` resolves to that.
+    ``mass_init``: None, or the initial diagonal of M (Lagrangian) or M⁻¹ (Hamiltonian): the
+    bias of the Cholesky network's diagonal outputs starts where diag(L) = sqrt(mass_init).
+    Data whose masses are far from 1 (task4's M⁻¹ ~ 200) otherwise start the optimiser far
+    from the data's scale. ``state_kind`` matters only for the black box ("velocity":
+    x = (q, q̇), "momentum": x = (q, p)); the physics models fix it (Lagrangian: velocity,
+    Hamiltonian: momentum) and ``None`` resolves to that.
     """
 
     kind: str
@@ -98,6 +102,7 @@ class ModelConfig:
     eps: float = 1e-3
     dtype: str = "float64"
     state_kind: str | None = None
+    mass_init: float | None = None
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)
@@ -124,6 +129,15 @@ class ModelConfig:
         if not (isinstance(self.eps, int | float) and self.eps >= 0):
             raise UserError(f"eps must be a number >= 0, got {self.eps!r}")
         set_("eps", float(self.eps))
+        if self.mass_init is not None:
+            ok = isinstance(self.mass_init, int | float) and not isinstance(self.mass_init, bool)
+            if not (ok and math.isfinite(self.mass_init) and self.mass_init > 0):
+                raise UserError(f"mass_init must be a number > 0 or None, got {self.mass_init!r}")
+            if math.sqrt(self.mass_init) <= self.eps:
+                raise UserError(
+                    f"mass_init must exceed eps² = {self.eps**2:g}, got {self.mass_init!r}"
+                )
+            set_("mass_init", float(self.mass_init))
         if self.dtype not in _DTYPES:
             raise UserError(f"dtype must be one of {list(_DTYPES)}, got {self.dtype!r}")
         natural = _NATURAL_STATE.get(self.kind)
@@ -374,6 +388,12 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
     kM, kV, kD, kA = jax.random.split(key, 4)
     act = config.activation
     mass = CholeskyField(n, *config.mass, act, mass_eps, key=kM, dtype=dt)
+    if config.mass_init is not None:
+        # diag(L) = softplus(b) + eps = sqrt(mass_init) at the bias: b = softplus⁻¹(...)
+        y = math.sqrt(config.mass_init) - mass_eps
+        b0 = y + math.log(-math.expm1(-y))
+        last = mass.mlp.biases[-1]
+        mass = eqx.tree_at(lambda f: f.mlp.biases[-1], mass, last.at[:n].set(b0))
     potential = ScalarField(n, *config.potential, act, key=kV, dtype=dt)
     if config.damping_form == "network":
         damping = CholeskyField(n, *config.damping, act, 0.0, key=kD, dtype=dt)

@@ -104,6 +104,18 @@ def test_train_bad_dataset_one_line(change, message, tmp_path, capsys):
     assert message in line and "bad.npz" in line
 
 
+def test_train_mass_init_from_data(data, tmp_path, capsys):
+    from learn.data import load_dataset, mass_scale
+
+    out = tmp_path / "h"
+    args = ["--model", "hamiltonian", "--width", "8", "--depth", "1", "--epochs", "1",
+            "--test-trajectories", "4", "--quiet", "--mass-init", "data"]  # fmt: skip
+    assert main(["train", str(data), "--out", str(out), *args]) == 0
+    cfg = json.loads((out / "config.json").read_text())
+    expected = mass_scale(load_dataset(data), "hamiltonian")
+    assert cfg["model"]["mass_init"] == pytest.approx(expected, rel=1e-12)
+
+
 def test_cli_user_errors(run, data, tmp_path, capsys):
     assert main(["train", str(data), "--out", str(tmp_path / "x"), "--quiet"]) == 2
     assert "--model is required" in _error_line(capsys)
@@ -118,6 +130,13 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
     assert "model has n=2 coordinates, the file has n=1" in _error_line(capsys)
     assert main(["predict", str(run), str(data), "--horizon", "1", "--trajectories", "x"]) == 2
     assert "--trajectories takes" in _error_line(capsys)
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--mass-init",
+                 "1"]) == 2  # fmt: skip
+    assert "--mass-init applies to physics models, not --model blackbox" in _error_line(capsys)
+    ham = ["--model", "hamiltonian", "--width", "8", "--depth", "1", "--epochs", "1", "--quiet"]
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), *ham, "--mass-init",
+                 "heavy"]) == 2  # fmt: skip
+    assert "--mass-init: expected a number or 'data', got 'heavy'" in _error_line(capsys)
     with pytest.raises(SystemExit) as exc:
         main(["train", str(data), "--model", "nonsense", "--out", str(tmp_path / "x")])
     assert exc.value.code == 2

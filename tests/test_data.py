@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
 
-from learn.data import load_dataset, make_pairs, split_trajectories
+from learn.data import load_dataset, make_pairs, mass_scale, split_trajectories
 from learn.errors import UserError
 
 
@@ -163,3 +163,16 @@ def test_refuses_missing_key_and_bad_meta(tmp_path, arrays):
     (tmp_path / "junk.npz").write_text(json.dumps({"a": 1}))
     with pytest.raises(UserError, match="cannot be read"):
         load_dataset(tmp_path / "junk.npz")
+
+
+def test_mass_scale_is_the_median_mass_or_inverse_mass(msd_file):
+    """p = M q̇ with the constant diagonal M = diag(1.0, 1.8) of eq. 25: rms(p)/rms(q̇) is the
+    mass of each coordinate exactly, the median of two is their mean."""
+    data = load_dataset(msd_file)
+    M = msd_matrices()[0]
+    masses = np.diag(M)
+    assert mass_scale(data, "lagrangian") == pytest.approx(np.median(masses), rel=1e-12)
+    assert mass_scale(data, "hamiltonian") == pytest.approx(np.median(1 / masses), rel=1e-12)
+    assert mass_scale(data, "hamiltonian", [0]) == pytest.approx(np.median(1 / masses), rel=1e-12)
+    with pytest.raises(UserError, match="kind must be a physics model kind, got 'blackbox'"):
+        mass_scale(data, "blackbox")

@@ -271,6 +271,7 @@ def test_config_json_round_trip():
         input_form="constant",
         eps=1e-2,
         dtype="float32",
+        mass_init=150,
     )
     again = ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
     assert again == cfg and hash(again) == hash(cfg)
@@ -289,6 +290,10 @@ def test_config_json_round_trip():
         ({"damping_form": "rayleigh"}, "damping_form must be one of"),
         ({"input_form": "table"}, "input_form must be one of"),
         ({"eps": -1.0}, "eps must be"),
+        ({"mass_init": 0.0}, "mass_init must be a number > 0 or None"),
+        ({"mass_init": float("nan")}, "mass_init must be a number > 0 or None"),
+        ({"mass_init": True}, "mass_init must be a number > 0 or None"),
+        ({"mass_init": 1e-8}, r"mass_init must exceed eps² = 1e-06"),
         ({"dtype": "float16"}, "dtype must be one of"),
         ({"state_kind": "momentum"}, "state_kind of a lagrangian model must be 'velocity'"),
     ],
@@ -296,6 +301,23 @@ def test_config_json_round_trip():
 def test_config_rejects_bad_values(kwargs, match):
     with pytest.raises(UserError, match=match):
         ModelConfig(**{"kind": "lagrangian", "n": 2, "m": 1, **kwargs})
+
+
+@pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian"])
+def test_mass_init_sets_the_initial_diagonal(kind, getkey):
+    """diag(L) = sqrt(mass_init) at the bias; at random q the diagonal of M (or M⁻¹) is near
+    mass_init (the weights' random part is O(1) against sqrt(200) ≈ 14)."""
+    cfg = ModelConfig(kind=kind, n=3, m=0, mass=(16, 2), mass_init=200.0)
+    model = make_model(cfg, key=getkey())
+    b = model.mass.mlp.biases[-1][:3]
+    np.testing.assert_allclose(jax.nn.softplus(b) + cfg.eps, np.sqrt(200.0), rtol=1e-12)
+    q = jax.random.uniform(getkey(), (50, 3), minval=-1, maxval=1)
+    L = jax.vmap(model.mass.factor)(q)
+    diag = np.einsum("bij,bij->bi", L, L)  # diag(L Lᵀ)
+    assert 50 < np.median(diag) < 800
+    plain = make_model(ModelConfig(kind=kind, n=3, m=0, mass=(16, 2)), key=getkey())
+    L0 = jax.vmap(plain.mass.factor)(q)
+    assert np.median(np.einsum("bij,bij->bi", L0, L0)) < 10
 
 
 def test_config_from_dict_rejects_unknown_and_missing_keys():

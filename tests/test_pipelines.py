@@ -33,6 +33,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     out = result.out_dir
     text = result.report.read_text()
     assert "Table III" in text and "| paper |" in text and "| ours |" in text
+    assert "Floor of the one-step loss" in text and "Every model is integrated by RK4" in text
     variants = result.results["variants"]
     assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
     for vname, vres in variants.items():
@@ -43,6 +44,9 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
             # on the tests' tiny budgets a rollout may blow up: reported as inf, never NaN
             assert not math.isnan(pr["prediction_error"]["mean"]), (vname, kind)
             assert (out / "train" / vname / kind / "done.json").is_file()
+            floor = entry["floor"]  # the true model stepped as this model is
+            assert floor["pairs"] > 0 and not math.isnan(floor["mean"])
+            assert floor["state"] == ("momentum" if kind == "hamiltonian" else "velocity")
             if kind != "blackbox":
                 summary = entry["analyze"]["summary"]
                 assert "pointwise" in summary
@@ -78,6 +82,21 @@ def test_second_call_skips_finished_stages(quick_runs):
     assert a == b
 
 
+def test_changed_training_settings_retrain_from_scratch(quick_runs, tmp_path):
+    """A run folder trained on other settings is not resumed: the new budget is trained."""
+    import dataclasses
+    import shutil
+
+    first = quick_runs("task1")
+    out = tmp_path / "task1"
+    shutil.copytree(first.out_dir, out)
+    epochs = first.config.epochs + 3
+    again = reproduce(dataclasses.replace(first.config, epochs=epochs), out, log=lambda _: None)
+    for kind in ("lagrangian", "blackbox"):
+        metrics = again.results["variants"]["main"]["models"][kind]["train"]["metrics"]
+        assert [m["epochs_run"] for m in metrics["members"]] == [epochs]
+
+
 def test_plans_follow_the_paper():
     full = {t: make_plan(load_spec(t), ReproduceConfig(t)) for t in TASKS}
     assert full["task1"].horizon == 2.7 and full["task3"].horizon == 5.0
@@ -85,6 +104,11 @@ def test_plans_follow_the_paper():
     assert [v.name for v in full["task5"].variants] == [
         "fixed_0.0002s", "50Hz", "100Hz", "1000Hz"]
     assert full["task4"].models["lagrangian"]["mass"] == (32, 3)  # Table III: 30*3, widened
+    # every model of a task steps alike; task2's 0.08 s step needs RK4 sub-steps, the
+    # actuated tasks' inputs are interpolated
+    for t, (sub, hold) in {"task1": (1, "constant"), "task2": (2, "constant"),
+                           "task3": (1, "linear"), "task5": (1, "linear")}.items():
+        assert {(m["substeps"], m["input_hold"]) for m in full[t].models.values()} == {(sub, hold)}
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000
