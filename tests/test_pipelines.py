@@ -97,6 +97,26 @@ def test_changed_training_settings_retrain_from_scratch(quick_runs, tmp_path):
         assert [m["epochs_run"] for m in metrics["members"]] == [epochs]
 
 
+def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
+    """Data simulated again (other settings, same file names) leave no model of the old data."""
+    import dataclasses
+    import shutil
+
+    import bridge.pipelines as pipelines
+
+    first = quick_runs("task1")
+    out = tmp_path / "task1"
+    shutil.copytree(first.out_dir, out)
+    plan = pipelines.make_plan
+    monkeypatch.setattr(pipelines, "make_plan", lambda spec, config: dataclasses.replace(
+        plan(spec, config), data={**plan(spec, config).data, "seed": 12345}))
+    again = reproduce(first.config, out, log=lambda _: None)
+    for kind in ("lagrangian", "blackbox"):
+        old = first.results["variants"]["main"]["models"][kind]["train"]["metrics"]
+        new = again.results["variants"]["main"]["models"][kind]["train"]["metrics"]
+        assert new["best_test_loss"]["mean"] != old["best_test_loss"]["mean"], kind
+
+
 def test_plans_follow_the_paper():
     full = {t: make_plan(load_spec(t), ReproduceConfig(t)) for t in TASKS}
     assert full["task1"].horizon == 2.7 and full["task3"].horizon == 5.0
