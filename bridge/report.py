@@ -172,12 +172,51 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
                  _fmt(r.get("alpha")), _fmt(r.get("distance_from_alpha_I"))]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     report = Path(an["report"])
+    lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]))
     lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
     scatter = report.parent / "scatter.png"
     if scatter.is_file():
         lines += [f"![true against transformed learned entries]({_rel(scatter, out)})", ""]
     return lines
+
+
+def _paper_q_lines(path: Path, kind: str, k: int) -> list[str]:
+    """Residual of each matrix at each of the paper's k configurations, and over the sampled
+    ones (all inside the data's range), for the headline transform: the direct comparison for
+    a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII)."""
+    import json
+
+    if k == 0 or not path.is_file():
+        return []
+    a = json.loads(path.read_text())
+    name = "direct" if kind == "hamiltonian" else "alpha"
+    tr = a["transforms"].get(name)
+    if tr is None or not tr.get("residuals"):
+        return []
+    blocks = list(tr["residuals"])
+    q = np.asarray(a["q"], float)
+    lines = ["", f"Relative residual per configuration, transform `{name}`: the paper's "
+             f"{k} configurations, then all {len(q) - k} sampled ones together:", "",
+             "| q | " + " | ".join(blocks) + " |", "|---|" + "---|" * len(blocks)]
+    for i in range(min(k, len(q))):
+        cells = [_pct(tr["residuals"][b][i]) for b in blocks]
+        qi = ", ".join(f"{v:.4g}" for v in q[i])
+        lines.append(f"| [{qi}] | " + " | ".join(cells) + " |")
+    cells = []
+    for b in blocks:  # ‖P X̂ − X‖/‖X‖ stacked over the sampled q, from the per-q residuals
+        r = np.array([np.nan if v is None else v for v in tr["residuals"][b][k:]], float)
+        norm = np.linalg.norm(np.asarray(a["true"][b], float)[k:].reshape(len(q) - k, -1),
+                              axis=1)
+        ok = np.isfinite(r)  # a residual is undefined (None) where the true matrix is 0
+        total = np.sqrt(np.sum((r[ok] * norm[ok]) ** 2) / max(np.sum(norm[ok] ** 2), 1e-300))
+        cells.append(_pct(total if ok.any() else None))
+    lines.append(f"| sampled ({len(q) - k}) | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _pct(x) -> str:
+    return "–" if x is None or not np.isfinite(x) else f"{100 * x:.2f} %"
 
 
 def _fmt(x) -> str:

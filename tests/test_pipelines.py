@@ -34,6 +34,8 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     text = result.report.read_text()
     assert "Table III" in text and "| paper |" in text and "| ours |" in text
     assert "Floor of the one-step loss" in text and "Every model is integrated by RK4" in text
+    # residuals at each of the paper's configurations, then over the sampled ones
+    assert "Relative residual per configuration" in text and "| sampled (" in text
     variants = result.results["variants"]
     assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
     for vname, vres in variants.items():
