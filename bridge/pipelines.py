@@ -48,7 +48,7 @@ PHYSICS_KINDS = ("lagrangian", "hamiltonian")
 FULL_BUDGETS: dict[str, dict[str, dict[str, int]]] = {
     "task1": {"lagrangian": {"epochs": 600}, "blackbox": {"epochs": 300}},
     "task2": {"lagrangian": {"epochs": 600}, "blackbox": {"epochs": 300}},
-    "task3": {"hamiltonian": {"epochs": 200}, "blackbox": {"epochs": 300}},
+    "task3": {"hamiltonian": {"epochs": 400}, "blackbox": {"epochs": 400}},
     "task4": {
         "lagrangian": {"epochs": 400},
         "hamiltonian": {"epochs": 300},
