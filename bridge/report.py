@@ -187,7 +187,7 @@ def _paper_q_lines(path: Path, kind: str, k: int) -> list[str]:
     a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII)."""
     import json
 
-    if k == 0 or not path.is_file():
+    if not path.is_file():
         return []
     a = json.loads(path.read_text())
     name = "direct" if kind == "hamiltonian" else "alpha"
@@ -196,8 +196,9 @@ def _paper_q_lines(path: Path, kind: str, k: int) -> list[str]:
         return []
     blocks = list(tr["residuals"])
     q = np.asarray(a["q"], float)
-    lines = ["", f"Relative residual per configuration, transform `{name}`: the paper's "
-             f"{k} configurations, then all {len(q) - k} sampled ones together:", "",
+    first = f"the paper's {k} configurations, then " if k else ""
+    lines = ["", f"Relative residual per configuration, transform `{name}`: {first}all "
+             f"{len(q) - k} sampled ones together:", "",
              "| q | " + " | ".join(blocks) + " |", "|---|" + "---|" * len(blocks)]
     for i in range(min(k, len(q))):
         cells = [_pct(tr["residuals"][b][i]) for b in blocks]
