@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["integration_floor", "true_vector_field"]
+__all__ = ["drift_baseline", "integration_floor", "true_vector_field"]
 
 
 def true_vector_field(true_model, state: str):
@@ -75,3 +75,21 @@ def integration_floor(
         d = x1 - x
         err = np.sum(d[:, :n] ** 2, axis=1) + weight * np.sum(d[:, n:] ** 2, axis=1)
     return np.where(np.isfinite(err), err, np.inf)
+
+
+def drift_baseline(pairs, qd0, *, state: str, weight: float = 1.0) -> np.ndarray:
+    """Per-pair one-step errors (eqs. 8-9) of a model that learned no forces: q moves on with
+    the recorded velocity q̇₀, the velocity (or momentum) stays as it was. In the velocity form
+    that is RK4 with q̈ = 0. A learned model near this baseline has learned almost nothing
+    about the accelerations, whatever its loss looks like in absolute terms.
+    """
+    if state not in ("velocity", "momentum"):
+        raise ValueError(f"state must be 'velocity' or 'momentum', got {state!r}")
+    x0, x1, dt = (np.asarray(a, float) for a in (pairs[0], pairs[4], pairs[3]))
+    n = x0.shape[1] // 2
+    qd0 = np.asarray(qd0, float)
+    if qd0.shape != (len(x0), n):
+        raise ValueError(f"qd0 must have shape {(len(x0), n)}, got {qd0.shape}")
+    dq = x1[:, :n] - (x0[:, :n] + dt.reshape(-1, 1) * qd0)
+    dv = x1[:, n:] - x0[:, n:]
+    return np.sum(dq**2, axis=1) + weight * np.sum(dv**2, axis=1)

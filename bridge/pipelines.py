@@ -356,7 +356,7 @@ def reproduce(
                              "long": plan.long_horizon, "dt": plan.other_dt},
                             lambda d, k=kind, f=files, t=tr: _stage_predict(plan, k, f, t, d))
             fl = stages.run(f"floor/{variant.name}/{kind}",
-                            {"files": files, "data": data_settings,
+                            {"files": files, "data": data_settings, "no_forces": True,
                              "integration": _integration(mplan),
                              "state": "momentum" if kind == "hamiltonian" else "velocity"},
                             lambda d, k=kind, f=files: _stage_floor(spec, plan, k, f))
@@ -604,16 +604,20 @@ def _stage_floor(spec, plan: Plan, kind: str, files: dict) -> dict:
     from learn.data import load_dataset, make_pairs
     from symbolic.model import TrueModel
 
-    from .floors import integration_floor
+    from .floors import drift_baseline, integration_floor
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     state = "momentum" if kind == "hamiltonian" else "velocity"
-    pairs = make_pairs(load_dataset(f["path"]), f["test"], state=state)
+    data = load_dataset(f["path"])
+    pairs = make_pairs(data, f["test"], state=state)
     err = integration_floor(TrueModel(spec), pairs, state=state,
                             **_integration(plan.models[kind]))
+    qd0 = make_pairs(data, f["test"], state="velocity").x0[:, spec.n:]
+    drift = drift_baseline(pairs, qd0, state=state)
     with np.errstate(invalid="ignore", over="ignore"):
         return {"mean": float(np.mean(err)), "std": float(np.std(err)), "pairs": len(err),
-                "state": state, **_integration(plan.models[kind])}
+                "state": state, **_integration(plan.models[kind]),
+                "no_forces": float(np.mean(drift))}
 
 
 def _truncated_error(rollout: dict, horizon: float) -> float:

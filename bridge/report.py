@@ -129,13 +129,17 @@ def _floor_lines(models: dict) -> list[str]:
         if fl is None:
             continue
         test = entry["predict"]["test_error"]["mean"]
-        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)})")
+        drift = fl.get("no_forces")
+        ceiling = "" if drift is None else f", no forces {_fmt(drift)}"
+        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)}{ceiling})")
     if not cells:
         return []
     return [
         "Floor of the one-step loss: the true model stepped exactly as the networks are, on "
         "the same test pairs. A test loss near it is limited by the integration, not the "
-        "network. " + "; ".join(cells) + ".",
+        "network. Beside it, the loss of a model that learned no forces (q moves on with the "
+        "recorded velocity, the velocity or momentum stays): a test loss near that one has "
+        "learned little of the accelerations. " + "; ".join(cells) + ".",
         "",
     ]
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.floors import integration_floor, true_vector_field
+from bridge.floors import drift_baseline, integration_floor, true_vector_field
 from learn.data import PairData
 
 
@@ -119,3 +119,33 @@ def test_bad_options_name_the_option(kw, message):
 def test_vector_field_rejects_unknown_state():
     with pytest.raises(ValueError, match="momentum"):
         true_vector_field(Oscillator(), "acceleration")
+
+
+def test_no_forces_baseline_is_rk4_with_zero_acceleration():
+    class Free(Oscillator):
+        def qdd(self, q, qd, u):
+            return 0.0 * q
+
+    pairs = _free_oscillation(0.2)
+    drift = drift_baseline(pairs, pairs.x0[:, 1:], state="velocity")
+    np.testing.assert_allclose(drift, integration_floor(Free(), pairs, state="velocity"),
+                               rtol=1e-12)
+    # the oscillator's true model is far below it
+    assert integration_floor(Oscillator(), pairs, state="velocity").mean() < 1e-6 * drift.mean()
+
+
+def test_no_forces_baseline_in_momentum_form_keeps_p():
+    """q + dt q̇₀ against q₁, p₀ against p₁ (here M = 2, so p = 2 q̇)."""
+    x0 = np.array([[0.1, 2.0]])
+    x1 = np.array([[0.25, 1.5]])
+    pairs = _pairs(x0, x1, 0.1)
+    got = drift_baseline(pairs, np.array([[1.0]]), state="momentum", weight=2.0)
+    np.testing.assert_allclose(got, [(0.25 - 0.2) ** 2 + 2.0 * 0.5**2], rtol=1e-12)
+
+
+def test_no_forces_baseline_rejects_bad_input():
+    pairs = _free_oscillation(0.1)
+    with pytest.raises(ValueError, match=r"qd0 must have shape \(16, 1\)"):
+        drift_baseline(pairs, np.zeros((3, 1)), state="velocity")
+    with pytest.raises(ValueError, match="state must be"):
+        drift_baseline(pairs, pairs.x0[:, 1:], state="force")

@@ -34,6 +34,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     text = result.report.read_text()
     assert "Table III" in text and "| paper |" in text and "| ours |" in text
     assert "Floor of the one-step loss" in text and "Every model is integrated by RK4" in text
+    assert "no forces" in text
     # residuals at each of the paper's configurations, then over the sampled ones
     assert "Relative residual per configuration" in text and "| sampled (" in text
     variants = result.results["variants"]
@@ -48,6 +49,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
             assert (out / "train" / vname / kind / "done.json").is_file()
             floor = entry["floor"]  # the true model stepped as this model is
             assert floor["pairs"] > 0 and not math.isnan(floor["mean"])
+            assert floor["no_forces"] > 0  # the loss of a model that learned no forces
             assert floor["state"] == ("momentum" if kind == "hamiltonian" else "velocity")
             if kind != "blackbox":
                 summary = entry["analyze"]["summary"]
