@@ -600,7 +600,8 @@ def _integration(m: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def _stage_floor(spec, plan: Plan, kind: str, files: dict) -> dict:
-    """The true model's one-step loss on the test pairs, stepped as the model is (floors.py)."""
+    """On the test pairs: the true model's one-step loss, stepped as the model is (the floor),
+    and the loss of a model that learned no forces (floors.py)."""
     from learn.data import load_dataset, make_pairs
     from symbolic.model import TrueModel
 

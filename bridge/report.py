@@ -122,7 +122,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
 
 
 def _floor_lines(models: dict) -> list[str]:
-    """The integration floor of each model beside its test loss (bridge/floors.py)."""
+    """Each model's test loss between its floor and its no-forces loss (bridge/floors.py)."""
     cells = []
     for kind, entry in models.items():
         fl = entry.get("floor")
@@ -130,8 +130,8 @@ def _floor_lines(models: dict) -> list[str]:
             continue
         test = entry["predict"]["test_error"]["mean"]
         drift = fl.get("no_forces")
-        ceiling = "" if drift is None else f", no forces {_fmt(drift)}"
-        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)}{ceiling})")
+        extra = "" if drift is None else f", no forces {_fmt(drift)}"
+        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)}{extra})")
     if not cells:
         return []
     return [
