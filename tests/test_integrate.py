@@ -2,35 +2,15 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from known_fields import Field, MassField
 
 from learn.errors import UserError
 from learn.integrate import rk4_step, rollout, step
-from learn.linalg import cholesky
 from learn.models import LagrangianNet, ModelConfig
-
-
-class Field(eqx.Module):
-    fn: Callable = eqx.field(static=True)
-
-    def __call__(self, q):
-        return self.fn(q)
-
-
-class MassField(eqx.Module):
-    fn: Callable = eqx.field(static=True)
-
-    def factor(self, q):
-        return cholesky(self.fn(q))
-
-    def __call__(self, q):
-        return self.fn(q)
 
 
 def analytic_lagrangian(n, m, M, K, D, A):

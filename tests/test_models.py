@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from known_fields import Field, MassField
 
 from learn.errors import UserError
-from learn.linalg import cholesky
 from learn.models import (
     BlackBoxNet,
     HamiltonianNet,
@@ -24,26 +22,7 @@ from learn.models import (
 G_ACC = 9.8
 
 
-# --- analytic fields following the sub-network protocol of learn.nets -------------------------
-class Field(eqx.Module):
-    fn: Callable = eqx.field(static=True)
-
-    def __call__(self, q):
-        return self.fn(q)
-
-
-class MassField(eqx.Module):
-    """A known SPD matrix field; factor() by the plain-jnp Cholesky."""
-
-    fn: Callable = eqx.field(static=True)
-
-    def factor(self, q):
-        return cholesky(self.fn(q))
-
-    def __call__(self, q):
-        return self.fn(q)
-
-
+# --- analytic fields (known_fields.py holds their sub-network wrappers) -----------------------
 # double pendulum, m = l = 1 (eq. 26), angles from the downward vertical
 def dp_mass(q):
     c = jnp.cos(q[0] - q[1])
