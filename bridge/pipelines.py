@@ -452,18 +452,17 @@ def _stage_data(spec, plan: Plan, folder: Path) -> dict:
 # -------------------------------------------------------------------------------- training
 
 
-def _model_config(spec, plan: Plan, kind: str, files: dict | None = None):
+def _model_config(spec, plan: Plan, kind: str, data, train_ids):
+    """The model of ``kind``; ``data`` (a learn Dataset) and ``train_ids`` set mass_init."""
+    from learn.data import mass_scale
     from learn.models import ModelConfig
 
     m = plan.models[kind]
     mass_init = None
-    if m.get("mass_init") == "data" and files is not None:
+    if m.get("mass_init") == "data":
         # Started at M⁻¹ ~ I, task4's Hamiltonian network (true M⁻¹ ~ 200) fell at once into
         # M⁻¹ ≈ 0, q̇ ≈ 0 (a test loss stuck at 4.6e-5) and never left it.
-        from learn.data import load_dataset, mass_scale
-
-        f = files["physics"]
-        mass_init = mass_scale(load_dataset(f["path"]), kind, f["train"])
+        mass_init = mass_scale(data, kind, train_ids)
     return ModelConfig(
         kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]), potential=tuple(m["potential"]),
         damping=tuple(m["damping"]), input=tuple(m["input"]), hidden=tuple(m["hidden"]),
@@ -486,14 +485,16 @@ def _same_run(run_dir: Path, tc) -> bool:
 
 
 def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progress) -> dict:
+    from learn.data import load_dataset
     from learn.errors import UserError as LearnUserError
     from learn.train import TrainConfig, train
 
     role = "blackbox" if kind == "blackbox" else "physics"
     f = files[role]
+    data = load_dataset(f["path"])  # read once: for mass_init and for training
     m = plan.models[kind]
     tc = TrainConfig(
-        model=_model_config(spec, plan, kind, files),
+        model=_model_config(spec, plan, kind, data, f["train"]),
         epochs=int(m["epochs"]),
         batch_size=plan.batch_size,
         lr=float(m["lr"]),
@@ -510,13 +511,12 @@ def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progres
     run_dir = folder / "run"
     resume = _same_run(run_dir, tc)
     try:
-        res = train(f["path"], tc, run_dir, progress=progress,
-                    force=not resume, resume=resume)
+        res = train(data, tc, run_dir, progress=progress, force=not resume, resume=resume)
     except LearnUserError:
         if not resume:
             raise
         # e.g. the data set was simulated again: start over
-        res = train(f["path"], tc, run_dir, progress=progress, force=True)
+        res = train(data, tc, run_dir, progress=progress, force=True)
     return {"run": str(run_dir), "metrics": res.metrics, "config": tc.to_dict(),
             "samples": res.metrics.get("train_pairs", f["samples"]), "epochs": tc.epochs}
 

@@ -10,6 +10,7 @@ another step size (Figs. 24-25) and, for Task 5, the error against the sampling 
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 from typing import Any
@@ -189,8 +190,6 @@ def _paper_q_lines(path: Path, kind: str, k: int) -> list[str]:
     """Residual of each matrix at each of the paper's k configurations, and over the sampled
     ones (all inside the data's range), for the headline transform: the direct comparison for
     a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII)."""
-    import json
-
     if not path.is_file():
         return []
     a = json.loads(path.read_text())
