@@ -105,6 +105,12 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, metavar="FILE.npz", help="dataset file to write")
     p.add_argument("--trajectories", type=int, metavar="K", help="number of trajectories")
     p.add_argument("--duration", type=float, metavar="S", help="seconds per trajectory")
+    p.add_argument(
+        "--settle",
+        type=float,
+        metavar="S",
+        help="seconds simulated before recording starts (default: [data] settle, else 0)",
+    )
     p.add_argument("--rate", type=float, metavar="HZ", help="output rate [Hz]")
     p.add_argument(
         "--dt", type=float, metavar="S", help="fixed RK4 step [s] (implies --integrator rk4)"
@@ -304,6 +310,8 @@ def cmd_simulate(args) -> int:
         raise UserError(f"--trajectories: must be at least 1, got {args.trajectories}")
     if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
         raise UserError(f"--noise: must be a non-negative standard deviation, got {args.noise}")
+    if args.settle is not None and not (np.isfinite(args.settle) and args.settle >= 0):
+        raise UserError(f"--settle: must be a non-negative number of seconds, got {args.settle}")
     if args.threads < 1:
         raise UserError(f"--threads: must be at least 1, got {args.threads}")
     integrator = args.integrator or ("rk4" if args.dt is not None else cfg.integrator)
@@ -323,6 +331,7 @@ def cmd_simulate(args) -> int:
         spec,
         trajectories=args.trajectories,
         duration=args.duration,
+        settle=args.settle,
         rate=args.rate,
         dt=args.dt,
         integrator=integrator,

@@ -81,6 +81,13 @@ INTEGRATION: dict[str, dict[str, Any]] = {
     "task5": {"input_hold": "linear"},
 }
 
+#: The longest RK4 step [s] a task's data may be stepped with: a variant whose data step is
+#: longer is stepped with ceil(step / MAX_STEP) sub-steps. Task 5's second segment has a fast
+#: overdamped mode (eigenvalue about -288 1/s at the hanging equilibrium): RK4 is stable only for
+#: steps below 2.79 / 288 = 9.7 ms, so the true model itself blows up at 50 Hz (floor 4.5e-3)
+#: and sits at the edge at 100 Hz; 7.5 ms gives 3 sub-steps at 50 Hz and 2 at 100 Hz.
+MAX_STEP: dict[str, float] = {"task5": 0.0075}
+
 #: Step sizes other than the data's for the rollouts of Figs. 24-25 (task1: 0.1 s, task2:
 #: 0.15 s, task3: 0.1 s as in Figs. 25, 31, 37), and a multiple of the data step elsewhere.
 OTHER_DT = {"task1": 0.1, "task2": 0.15, "task3": 0.1}
@@ -120,6 +127,7 @@ class Variant:
     source: str  # "cvodes" or "rk4" (the simulated file it comes from)
     rate: float | None  # resample the source to this rate (None: as simulated)
     models: tuple[str, ...]
+    substeps: int | None = None  # RK4 steps per data interval (None: the models' own)
 
 
 @dataclass(frozen=True)
@@ -180,7 +188,9 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         variants = [Variant("fixed_0.0002s", "rk4", None, ("lagrangian", "blackbox"))]
         for r in rates:
             kinds = ("lagrangian", "blackbox") if r == 100.0 else ("lagrangian",)
-            variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds))
+            sub = math.ceil(1.0 / r / MAX_STEP[task] - 1e-9) if task in MAX_STEP else None
+            variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds,
+                                    sub if sub and sub > 1 else None))
         variants = tuple(variants)
     else:
         variants = (Variant("main", "cvodes", None, physics + ("blackbox",)),)
@@ -338,7 +348,7 @@ def reproduce(
         files = data["variants"][variant.name]
         for kind in variant.models:
             key = f"{variant.name}/{kind}"
-            mplan = plan.models[kind]
+            mplan = variant_model(plan, variant, kind)
             # the data settings too: a data set simulated again under the same file name
             # must not leave models trained on the old one
             settings = {"model": mplan, "files": files, "data": data_settings,
@@ -346,8 +356,8 @@ def reproduce(
                         "samples": plan.physics_samples if kind != "blackbox" else None}
             name = f"train/{variant.name}/{kind}"
             tr = stages.run(name, settings,
-                            lambda d, k=kind, f=files: _stage_train(spec, plan, k, f, d,
-                                                                    progress))
+                            lambda d, k=kind, f=files, m=mplan: _stage_train(
+                                spec, plan, k, m, f, d, progress))
             # a finished run found again takes no time now: count the time it trained
             trained = sum(float(m.get("seconds", 0.0)) for m in tr["metrics"].get("members", []))
             credit[name] = max(0.0, trained - stages.seconds[name])
@@ -359,7 +369,7 @@ def reproduce(
                             {"files": files, "data": data_settings, "no_forces": True,
                              "integration": _integration(mplan),
                              "state": "momentum" if kind == "hamiltonian" else "velocity"},
-                            lambda d, k=kind, f=files: _stage_floor(spec, plan, k, f))
+                            lambda d, k=kind, f=files, m=mplan: _stage_floor(spec, k, m, f))
             entry = {"train": tr, "predict": pr, "floor": fl}
             if kind != "blackbox":
                 entry["analyze"] = stages.run(
@@ -484,7 +494,16 @@ def _same_run(run_dir: Path, tc) -> bool:
         return False
 
 
-def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progress) -> dict:
+def variant_model(plan: Plan, variant: Variant, kind: str) -> dict[str, Any]:
+    """The plan of model ``kind`` as trained on ``variant`` (its own sub-steps, if any)."""
+    m = dict(plan.models[kind])
+    if variant.substeps is not None:
+        m["substeps"] = max(int(m["substeps"]), variant.substeps)
+    return m
+
+
+def _stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, folder: Path,
+                 progress) -> dict:
     from learn.data import load_dataset
     from learn.errors import UserError as LearnUserError
     from learn.train import TrainConfig, train
@@ -492,7 +511,6 @@ def _stage_train(spec, plan: Plan, kind: str, files: dict, folder: Path, progres
     role = "blackbox" if kind == "blackbox" else "physics"
     f = files[role]
     data = load_dataset(f["path"])  # read once: for mass_init and for training
-    m = plan.models[kind]
     tc = TrainConfig(
         model=_model_config(spec, plan, kind, data, f["train"]),
         epochs=int(m["epochs"]),
@@ -599,7 +617,7 @@ def _integration(m: Mapping[str, Any]) -> dict[str, Any]:
     return {"substeps": int(m["substeps"]), "input_hold": str(m["input_hold"])}
 
 
-def _stage_floor(spec, plan: Plan, kind: str, files: dict) -> dict:
+def _stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
     """On the test pairs: the true model's one-step loss, stepped as the model is (the floor),
     and the loss of a model that learned no forces (floors.py)."""
     from learn.data import load_dataset, make_pairs
@@ -611,13 +629,12 @@ def _stage_floor(spec, plan: Plan, kind: str, files: dict) -> dict:
     state = "momentum" if kind == "hamiltonian" else "velocity"
     data = load_dataset(f["path"])
     pairs = make_pairs(data, f["test"], state=state)
-    err = integration_floor(TrueModel(spec), pairs, state=state,
-                            **_integration(plan.models[kind]))
+    err = integration_floor(TrueModel(spec), pairs, state=state, **_integration(m))
     qd0 = make_pairs(data, f["test"], state="velocity").x0[:, spec.n:]
     drift = drift_baseline(pairs, qd0, state=state)
     with np.errstate(invalid="ignore", over="ignore"):
         return {"mean": float(np.mean(err)), "std": float(np.std(err)), "pairs": len(err),
-                "state": state, **_integration(plan.models[kind]),
+                "state": state, **_integration(m),
                 "no_forces": float(np.mean(drift))}
 
 

@@ -151,8 +151,13 @@ def _integration_sentence(plan) -> str:
     sub = int(first.get("substeps", 1))
     hold = first.get("input_hold", "constant")
     how = "held constant" if hold == "constant" else "interpolated linearly"
-    return (f"Every model is integrated by RK4 with {sub} step{'s' if sub > 1 else ''} per data "
+    text = (f"Every model is integrated by RK4 with {sub} step{'s' if sub > 1 else ''} per data "
             f"interval, inputs {how} between samples, in training and in prediction.")
+    own = [f"the {v.name} data with {v.substeps}" for v in plan.variants if v.substeps]
+    if own:
+        text += (" Where the data step is longer than the true model's stable RK4 step, more "
+                 "sub-steps: " + ", ".join(own) + ".")
+    return text
 
 
 def _rel(path: Path, out: Path) -> str:

@@ -58,6 +58,7 @@ DATA_KEYS: dict[str, tuple[str, str]] = {
     "rate": ("float", "output rate [Hz]"),
     "rates": ("floats", "output rates [Hz]: written at the highest, resampled to the others"),
     "duration": ("float", "seconds per trajectory"),
+    "settle": ("float", "seconds simulated before recording starts (the release transient)"),
     "trajectories": ("int", "number of trajectories (default: max(train, black-box train) + test)"),
     "train_trajectories": ("int", "physics-model training trajectories"),
     "test_trajectories": ("int", "test trajectories (the last ones)"),
@@ -98,6 +99,7 @@ class DataConfig:
     integrator: str = "cvodes"
     rates: tuple[float, ...] = (100.0,)
     duration: float = 10.0
+    settle: float = 0.0
     trajectories: int | None = None
     train_trajectories: int | None = None
     test_trajectories: int = 0
@@ -164,7 +166,9 @@ def data_config(spec: ModelSpec, table: Mapping[str, Any] | None = None) -> Data
                 or not np.isfinite(value)
             ):
                 fail(key, f"expected a number, got {value!r}")
-            if value < 0 or (value == 0 and key not in ("noise",)):
+            if key == "settle" and value < 0:
+                fail(key, f"must not be negative, got {value!r}")
+            if value < 0 or (value == 0 and key not in ("noise", "settle")):
                 fail(key, f"must be positive, got {value!r}")
             out[key] = float(value)
         elif kind == "str":
@@ -308,6 +312,7 @@ class DatasetPlan:
     seed: int
     noise: float
     signal: str
+    settle: float = 0.0
 
 
 def plan_dataset(
@@ -315,6 +320,7 @@ def plan_dataset(
     *,
     trajectories: int | None = None,
     duration: float | None = None,
+    settle: float | None = None,
     rate: float | None = None,
     dt: float | None = None,
     integrator: str | None = None,
@@ -330,7 +336,9 @@ def plan_dataset(
     """Validate a data-set request; every argument left None comes from the spec's ``[data]``.
 
     ``rate`` defaults to the highest of ``[data]``'s rates (cvodes) or ``fixed_step_rate`` / 1 /
-    ``fixed_step_dt`` (rk4); ``dt`` (rk4 step) to ``fixed_step_dt`` or 1 / rate.
+    ``fixed_step_dt`` (rk4); ``dt`` (rk4 step) to ``fixed_step_dt`` or 1 / rate. ``settle``
+    seconds are simulated before the recording starts (``t`` then runs from ``settle`` to
+    ``settle + duration``); it must be a whole number of output samples.
     """
     spec = load_spec(model)
     cfg = data_config(spec, data)
@@ -365,8 +373,23 @@ def plan_dataset(
     kind = signal or cfg.signal
     if kind not in SIGNAL_KINDS:
         raise DataError(f"signal: expected one of {', '.join(SIGNAL_KINDS)}, got {kind!r}")
+    settle = cfg.settle if settle is None else float(settle)
+    skip = settle * float(rate)
+    if not (np.isfinite(settle) and settle >= 0):
+        raise DataError(f"settle: must be a non-negative number of seconds, got {settle}")
+    if abs(skip - round(skip)) > 1e-6 * max(skip, 1.0):
+        raise DataError(
+            f"settle: {settle:g} s is not a whole number of samples at {float(rate):g} Hz"
+        )
     return DatasetPlan(
-        spec=spec, data=cfg, sim=sim, trajectories=total, seed=seed, noise=noise, signal=kind
+        spec=spec,
+        data=cfg,
+        sim=sim,
+        trajectories=total,
+        seed=seed,
+        noise=noise,
+        signal=kind,
+        settle=settle,
     )
 
 
@@ -418,19 +441,25 @@ def make_dataset(
         cfg, spec.n, spec.m, ids, kind=kind, duration=sim.duration, seed=seed
     )
     t0 = time.perf_counter()
-    res = simulate(fns, x0, sigs, sim, progress=progress)
+    # with settle > 0 the arm is simulated from its drawn initial state for ``settle`` seconds
+    # before recording: the release transient (e.g. Task 5's second segment, eigenvalue about
+    # -288 1/s) would otherwise hold nearly all of the one-step loss in a few samples
+    run = replace(sim, duration=sim.duration + plan.settle) if plan.settle else sim
+    res = simulate(fns, x0, sigs, run, progress=progress)
     timings["simulate"] = time.perf_counter() - t0
     timings.update({k: v for k, v in res.info.items() if k.endswith("_seconds")})
 
-    K, T = res.x.shape[:2]
+    skip = int(round(plan.settle * sim.rate))
+    K = res.x.shape[0]
+    T = res.x.shape[1] - skip
     n, m = spec.n, spec.m
     arrays = {
-        "t": np.tile(res.t, K),
-        "q": res.q.reshape(K * T, n).copy(),
-        "qd": res.qd.reshape(K * T, n).copy(),
-        "qdd": res.qdd.reshape(K * T, n),
-        "p": res.p.reshape(K * T, n),
-        "u": res.u.reshape(K * T, m),
+        "t": np.tile(res.t[skip:], K),
+        "q": res.q[:, skip:].reshape(K * T, n).copy(),
+        "qd": res.qd[:, skip:].reshape(K * T, n).copy(),
+        "qdd": res.qdd[:, skip:].reshape(K * T, n),
+        "p": res.p[:, skip:].reshape(K * T, n),
+        "u": res.u[:, skip:].reshape(K * T, m),
         "traj": np.repeat(np.arange(K, dtype=np.int64), T),
     }
     noise_meta = {"sigma": noise, "arrays": [], "seed": None}
@@ -451,11 +480,11 @@ def make_dataset(
         "n": n,
         "m": m,
         "coordinates": list(spec.coordinate_names),
-        "simulation": sim.describe(),
+        "simulation": sim.describe() | {"settle": plan.settle},
         "rate": sim.rate,
         "trajectories": K,
         "samples_per_trajectory": T,
-        "initial_states": x0.tolist(),
+        "initial_states": x0.tolist(),  # at t = 0, before any settle time
         "signals": [s.to_dict() for s in sigs],
         "signal_kind": kind,
         "seed": seed,

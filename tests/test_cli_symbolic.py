@@ -105,6 +105,8 @@ def test_simulate_and_resampled_siblings(capsys, tmp_path):
     d = read_dataset(path)
     assert d.meta["rate"] == 1000.0 and len(d) == 2 * 200 and d.q.shape == (400, 6)
     assert d.meta["seed"] == 3
+    # the preset's settle time: recording starts 1 s after release
+    assert d.meta["simulation"]["settle"] == 1.0 and d.t[0] == 1.0
     for rate, count in ((50, 10), (100, 20)):
         sub = read_dataset(tmp_path / f"t5_{rate}hz.npz")
         assert sub.meta["rate"] == rate and len(sub) == 2 * count
@@ -210,6 +212,14 @@ def test_simulate_rk4_with_noise(capsys, tmp_path):
             "--trajectories: must be at least 1",
         ),
         (["simulate", "task1", "--out", "{tmp}/a.npz", "--noise", "-0.1"], "--noise: must be"),
+        (
+            ["simulate", "task1", "--out", "{tmp}/a.npz", "--settle", "-1"],
+            "--settle: must be a non-negative number of seconds, got -1.0",
+        ),
+        (
+            ["simulate", "task1", "--out", "{tmp}/a.npz", "--settle", "0.013", "--rate", "50"],
+            "settle: 0.013 s is not a whole number of samples at 50 Hz",
+        ),
         (
             ["simulate", "{tmp}/bad.toml", "--out", "{tmp}/a.npz"],
             "field 'masses[0]': must be positive",

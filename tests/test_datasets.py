@@ -109,6 +109,30 @@ def test_noise_is_recorded_and_seeded(cache):
     assert noisy.meta["noise"]["arrays"] == ["q", "qd", "qdd", "p"]
 
 
+@pytest.mark.parametrize("integrator", ["cvodes", "rk4"])
+def test_settle_drops_the_release_transient(cache, integrator):
+    kw = dict(trajectories=2, rate=50.0, integrator=integrator, cache=cache)
+    kw |= {"dt": 0.005} if integrator == "rk4" else {}
+    whole = make_dataset("task1", duration=1.5, **kw)
+    settled = make_dataset("task1", duration=1.0, settle=0.5, **kw)
+    # the recording is the last second of a 1.5 s run from the same drawn state and signal
+    tail = whole.t >= 0.5 - 1e-12
+    assert len(settled) == 2 * 50 and settled.meta["samples_per_trajectory"] == 50
+    np.testing.assert_allclose(settled.t, whole.t[tail], rtol=0, atol=1e-12)
+    for key in ("q", "qd", "qdd", "p", "u"):
+        np.testing.assert_allclose(getattr(settled, key), getattr(whole, key)[tail], atol=1e-9)
+    assert settled.meta["simulation"]["settle"] == 0.5
+    assert settled.meta["initial_states"] == whole.meta["initial_states"]
+    assert make_dataset("task1", duration=1.0, **kw).meta["simulation"]["settle"] == 0.0
+
+
+def test_settle_must_be_whole_samples():
+    with pytest.raises(DataError, match=r"settle: 0.013 s is not a whole number of samples at 50"):
+        datasets.plan_dataset("task1", settle=0.013, rate=50.0)
+    with pytest.raises(DataError, match=r"settle: must be a non-negative"):
+        datasets.plan_dataset("task1", settle=-1.0)
+
+
 def test_rk4_dataset_and_resampling(cache):
     d = make_dataset(
         "task1", integrator="rk4", dt=0.001, rate=100.0, trajectories=2, duration=1.0, cache=cache
@@ -183,6 +207,7 @@ def _spec(data_lines: str):
         ("rates = [50.0, -1.0]\n", r"'data.rates': rates must be positive"),
         ("rate = 10.0\nrates = [5.0]\n", r"'data.rates': give either"),
         ("duration = -1.0\n", r"'data.duration': must be positive"),
+        ("settle = -0.5\n", r"'data.settle': must not be negative"),
         ("integrator = 'euler'\n", r"'data.integrator': expected one of cvodes, rk4"),
         ("signal = 'square'\n", r"'data.signal': expected one of"),
         (

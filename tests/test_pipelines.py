@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from bridge.cli import main
-from bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce
+from bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
 from symbolic.spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
@@ -133,6 +133,13 @@ def test_plans_follow_the_paper():
     for t, (sub, hold) in {"task1": (1, "constant"), "task2": (2, "constant"),
                            "task3": (1, "linear"), "task5": (1, "linear")}.items():
         assert {(m["substeps"], m["input_hold"]) for m in full[t].models.values()} == {(sub, hold)}
+    # task5's 50 and 100 Hz steps exceed RK4's stable step for its fast mode: own sub-steps
+    t5 = full["task5"]
+    assert {v.name: v.substeps for v in t5.variants} == {
+        "fixed_0.0002s": None, "50Hz": 3, "100Hz": 2, "1000Hz": None}
+    assert [variant_model(t5, v, "lagrangian")["substeps"] for v in t5.variants] == [
+        1, 3, 2, 1]
+    assert t5.models["lagrangian"]["substeps"] == 1
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000
