@@ -99,6 +99,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
             write_table(table, out / "tables", stem)
             lines += [to_markdown(table), ""]
         lines += _floor_lines(models)
+        lines += _modes_lines(models)
         lines += _variant_figures(plan, vname, models, fig_dir, out)
     if plan.task == "task5":
         lines += _rate_figure(plan, results, fig_dir, out)
@@ -120,6 +121,30 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
     tmp.write_text("\n".join(lines))
     os.replace(tmp, path)
     return path
+
+
+def _modes_lines(models: dict) -> list[str]:
+    """The true and each learned model's eigenvalues at rest at the data's mean q and u."""
+    from .modes import format_modes
+
+    rows = [(kind, e["modes"]) for kind, e in models.items() if e.get("modes")]
+    if not rows:
+        return []
+    first = rows[0][1]
+    q = ", ".join(f"{v:.3g}" for v in first["q"])
+    lines = [
+        "Time scales: eigenvalues of ẋ = f(x, u) linearised at rest at the training data's mean "
+        f"q = [{q}] with its mean input (1/s; fastest decay first; a positive real part is an "
+        "unstable direction, and a missing fast mode one the data did not show the network).",
+        "",
+        "| dynamics | eigenvalues | largest real part |",
+        "|---|---|---|",
+        f"| true | {format_modes(first['true'])} | {first['true_max_real']:.3g} |",
+    ]
+    for kind, mo in rows:
+        lines.append(f"| {_NETWORK[kind]} | {format_modes(mo['learned'])} | "
+                     f"{mo['learned_max_real']:.3g} |")
+    return lines + [""]
 
 
 def _floor_lines(models: dict) -> list[str]:

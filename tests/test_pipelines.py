@@ -35,6 +35,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     assert "Table III" in text and "| paper |" in text and "| ours |" in text
     assert "Floor of the one-step loss" in text and "Every model is integrated by RK4" in text
     assert "no forces" in text
+    assert "Time scales: eigenvalues" in text and "| true |" in text
     # residuals at each of the paper's configurations, then over the sampled ones
     assert "Relative residual per configuration" in text and "| sampled (" in text
     variants = result.results["variants"]
@@ -51,6 +52,11 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
             assert floor["pairs"] > 0 and not math.isnan(floor["mean"])
             assert floor["no_forces"] > 0  # the loss of a model that learned no forces
             assert floor["state"] == ("momentum" if kind == "hamiltonian" else "velocity")
+            modes = entry["modes"]  # linearised at rest: 2n eigenvalues of each side
+            assert len(modes["true"]) == len(modes["learned"]) == 2 * len(modes["q"])
+            assert math.isfinite(modes["true_max_real"])
+            if task == "task1":  # linear and damped: the same decaying modes everywhere
+                assert modes["true_max_real"] < 0
             if kind != "blackbox":
                 summary = entry["analyze"]["summary"]
                 assert "pointwise" in summary
@@ -140,6 +146,7 @@ def test_plans_follow_the_paper():
     assert [variant_model(t5, v, "lagrangian")["substeps"] for v in t5.variants] == [
         1, 3, 2, 1]
     assert t5.models["lagrangian"]["substeps"] == 1
+    assert t5.models["lagrangian"]["lr"] == 1e-2 and t5.models["blackbox"]["lr"] == 2e-3
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000
