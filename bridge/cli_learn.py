@@ -39,6 +39,12 @@ def register(subparsers) -> None:
         help="pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; rollout: eq. 8/9 averaged "
         "over --rollout-steps steps",
     )
+    p.add_argument(
+        "--accel-labels",
+        choices=("recorded", "differences"),
+        default="recorded",
+        help="q̈ labels of --loss accel: recorded in the file, or central differences of q̇",
+    )
     p.add_argument("--loss-weight", type=float, default=1.0, help="lambda of eqs. 8/9")
     p.add_argument(
         "--rollout-steps",
@@ -266,6 +272,7 @@ def cmd_train(args) -> int:
             weight_decay=args.weight_decay,
             clip_norm=args.clip_norm,
             loss=args.loss,
+            accel_labels=args.accel_labels,
             loss_weight=args.loss_weight,
             rollout_steps=args.rollout_steps,
             substeps=args.substeps,

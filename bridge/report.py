@@ -178,6 +178,14 @@ def _integration_sentence(plan) -> str:
     how = "held constant" if hold == "constant" else "interpolated linearly"
     text = (f"Every model is integrated by RK4 with {sub} step{'s' if sub > 1 else ''} per data "
             f"interval, inputs {how} between samples, in training and in prediction.")
+    accel = [_NETWORK[k] for k, m in plan.models.items() if m.get("loss") == "accel"]
+    if accel:
+        labels = {m.get("accel_labels") for m in plan.models.values() if m.get("loss") == "accel"}
+        where = ("central differences of the recorded velocities" if labels == {"differences"}
+                 else "the recorded accelerations")
+        text += (f" The {' and '.join(accel)} network{'s' if len(accel) > 1 else ''} train"
+                 f"{'' if len(accel) > 1 else 's'} on the acceleration loss (eq. 10) with q̈ from "
+                 f"{where}; its step is used in prediction only.")
     own = [f"the {v.name} data with {v.substeps}" for v in plan.variants if v.substeps]
     if own:
         text += (" Where the data step is longer than the true model's stable RK4 step, more "

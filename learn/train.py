@@ -34,6 +34,7 @@ import optax
 
 from . import checkpoint as ckpt
 from .data import (
+    ACCEL_LABELS,
     Dataset,
     PairData,
     WindowData,
@@ -78,7 +79,8 @@ class TrainConfig:
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
     ``clip_norm`` > 0 clips the global gradient norm.
     ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
-    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only) or "rollout"
+    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only; q̈ labels as
+    ``accel_labels`` says: "recorded" in the file or "differences" of the velocities) or "rollout"
     (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
     first state of windows of consecutive samples of one trajectory; minibatches of windows).
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
@@ -107,6 +109,7 @@ class TrainConfig:
     rollout_steps: int = 5
     substeps: int = 1
     input_hold: str = "constant"
+    accel_labels: str = "recorded"
     seed: int = 0
     seeds: int = 1
     ensemble: str = "auto"
@@ -152,6 +155,7 @@ class TrainConfig:
             ("loss", LOSSES),
             ("ensemble", ENSEMBLE_MODES),
             ("input_hold", ("constant", "linear")),
+            ("accel_labels", ACCEL_LABELS),
         ):
             if getattr(self, name) not in allowed:
                 raise UserError(
@@ -164,6 +168,10 @@ class TrainConfig:
             raise UserError(f"--samples must be an integer >= 1, got {self.samples!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
+        if self.accel_labels != "recorded" and self.loss != "accel":
+            raise UserError(
+                f"--accel-labels {self.accel_labels} is for --loss accel, not --loss {self.loss}"
+            )
         if self.loss == "accel" and self.model.state_kind != "velocity":
             raise UserError(
                 "--loss accel (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
@@ -879,10 +887,12 @@ def train(
         test_np = make_windows(data, test_ids, horizon=h, state=state)
         train_pairs, test_pairs = _to_windows(train_np, dtype), _to_windows(test_np, dtype)
     else:
+        accel = config.accel_labels
         train_np = make_pairs(
-            data, train_ids, state=state, samples=config.samples, seed=config.split_seed
+            data, train_ids, state=state, samples=config.samples, seed=config.split_seed,
+            accel=accel,
         )
-        test_np = make_pairs(data, test_ids, state=state)
+        test_np = make_pairs(data, test_ids, state=state, accel=accel)
         if config.loss != "accel":
             train_np = train_np._replace(xdot0=None)
             test_np = test_np._replace(xdot0=None)

@@ -147,6 +147,11 @@ def test_plans_follow_the_paper():
         1, 3, 2, 1]
     assert t5.models["lagrangian"]["substeps"] == 1
     assert t5.models["lagrangian"]["lr"] == 1e-2 and t5.models["blackbox"]["lr"] == 2e-3
+    # task5's Lagrangian networks learn from eq. 10 with q̈ from differences of the velocities
+    assert (t5.models["lagrangian"]["loss"], t5.models["lagrangian"]["accel_labels"]) == (
+        "accel", "differences")
+    assert {m.get("loss", "pair") for t in TASKS for k, m in full[t].models.items()
+            if (t, k) != ("task5", "lagrangian")} == {"pair"}
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000

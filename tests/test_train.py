@@ -236,6 +236,12 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
     res = train(msd, blackbox_train_config(loss="accel", lr=3e-2), tmp_path / "acc")
     h = res.members[0].history  # eq. 10: squared error of (q̇, q̈)
     assert h[-1]["test_loss"] < h[0]["test_loss"] / 5
+    # q̈ labels from central differences of q̇ (velocity-only data): learns as well
+    res = train(msd, blackbox_train_config(loss="accel", lr=3e-2, accel_labels="differences"),
+                tmp_path / "acc-fd")
+    h = res.members[0].history
+    assert h[-1]["test_loss"] < h[0]["test_loss"] / 5
+    assert res.config.accel_labels == "differences"
     res = train(msd, blackbox_train_config(loss="rollout", rollout_steps=4), tmp_path / "ro")
     h = res.members[0].history  # multi-step loss over windows of 5 samples
     assert h[-1]["test_loss"] < h[0]["test_loss"] / 2
@@ -251,5 +257,10 @@ def test_bad_config_values():
         blackbox_train_config(schedule="linear")
     with pytest.raises(UserError, match="--lr must be a positive number"):
         blackbox_train_config(lr=-1.0)
+    with pytest.raises(UserError, match="--accel-labels must be one of"):
+        blackbox_train_config(loss="accel", accel_labels="smoothed")
+    with pytest.raises(UserError, match="--accel-labels differences is for --loss accel, not "
+                                        "--loss pair"):
+        blackbox_train_config(accel_labels="differences")
     cfg = blackbox_train_config(test_trajectories=[1, 2])
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg
