@@ -199,5 +199,5 @@ def test_difference_accelerations_converge_at_second_order(tmp_path):
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(orders > 1.8), (errors, orders)
     assert errors[-1] < 1e-3 * np.max(np.abs(data.qdd))
-    with pytest.raises(UserError, match=r"accel labels must be one of \['recorded', 'differences'\]"):
+    with pytest.raises(UserError, match=r"accel labels must be one of \['recorded', 'diff"):
         make_pairs(data, [0], accel="smoothed")
