@@ -185,7 +185,8 @@ def _integration_sentence(plan) -> str:
                  else "the recorded accelerations")
         text += (f" The {' and '.join(accel)} network{'s' if len(accel) > 1 else ''} train"
                  f"{'' if len(accel) > 1 else 's'} on the acceleration loss (eq. 10) with q̈ from "
-                 f"{where}; its step is used in prediction only.")
+                 f"{where}; for {'them' if len(accel) > 1 else 'it'} the RK4 steps above serve "
+                 "prediction only.")
     own = [f"the {v.name} data with {v.substeps}" for v in plan.variants if v.substeps]
     if own:
         text += (" Where the data step is longer than the true model's stable RK4 step, more "
