@@ -89,7 +89,7 @@ INTEGRATION: dict[str, dict[str, Any]] = {
 #: below the no-forces loss) but every one had a slow unstable direction (largest real part of
 #: the linearised dynamics +0.04 to +0.43, true -0.11) and all their 10 s rollouts blew up: the
 #: one-step loss barely constrains directions the data do not excite. On eq. 10 with q̈ from
-#: central differences of the recorded velocities (the paper's remedy, Section V), the 100 Hz
+#: central differences of the recorded velocities (the paper's remedy, Section VI-A), the 100 Hz
 #: network kept every true time scale and its 10 s rollout error was 0.009 (eq. 8: inf).
 LOSSES: dict[str, dict[str, dict[str, Any]]] = {
     "task5": {"lagrangian": {"loss": "accel", "accel_labels": "differences"}},

@@ -87,7 +87,7 @@ def difference_accelerations(data: Dataset) -> np.ndarray:
     """q̈ estimated from the recorded velocities alone: second-order central differences of q̇
     over t within each trajectory (one-sided second order at its ends, first order for a
     trajectory of two samples), as velocity-only measurements allow (the paper's remedy for
-    coarse sampling, Section V: "use the acceleration information directly as training labels").
+    coarse sampling, Section VI-A: "use the acceleration information directly as training labels").
     The error is O(dt²): 0.3-0.5 % of rms q̈ on Task 5's 100 Hz data, 1-2 % at 50 Hz.
     """
     out = np.zeros_like(data.qd)
