@@ -146,6 +146,15 @@ def test_plans_follow_the_paper():
     assert [variant_model(t5, v, "lagrangian")["substeps"] for v in t5.variants] == [
         1, 3, 2, 1]
     assert t5.models["lagrangian"]["substeps"] == 1
+    # as many optimizer steps on the 50 Hz data's 23,992 pairs as on 45,000 elsewhere
+    fifty = next(v for v in t5.variants if v.name == "50Hz")
+    files = {"physics": {"samples": 23992}}
+    assert variant_model(t5, fifty, "lagrangian", files)["epochs"] == 376
+    assert variant_model(t5, fifty, "lagrangian", {"physics": {"samples": 48000}})["epochs"] == 200
+    assert "equal_steps" not in variant_model(t5, fifty, "lagrangian", files)
+    assert variant_model(t5, fifty, "blackbox", files)["epochs"] == 40
+    fixed = make_plan(load_spec("task5"), ReproduceConfig("task5", epochs=7))
+    assert variant_model(fixed, fifty, "lagrangian", files)["epochs"] == 7
     assert t5.models["lagrangian"]["lr"] == 1e-2 and t5.models["blackbox"]["lr"] == 2e-3
     # task5's Lagrangian networks learn from eq. 10 with q̈ from differences of the velocities
     assert (t5.models["lagrangian"]["loss"], t5.models["lagrangian"]["accel_labels"]) == (
