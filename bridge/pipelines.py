@@ -521,8 +521,8 @@ def variant_model(plan: Plan, variant: Variant, kind: str,
                   files: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The plan of model ``kind`` as trained on ``variant``: its own sub-steps, if any, and,
     for a budget marked ``equal_steps``, as many optimizer steps as on ``physics_samples``
-    pairs where the variant's training data (``files``) hold fewer (task5's 50 Hz data: 23,992
-    pairs, so 376 epochs where the others take 200)."""
+    pairs where the variant's training data (``files``) hold fewer (task5's 50 Hz data: 24,000
+    samples, so 375 epochs where the others take 200)."""
     m = dict(plan.models[kind])
     if variant.substeps is not None:
         m["substeps"] = max(int(m["substeps"]), variant.substeps)
