@@ -52,7 +52,7 @@ class DataError(UserError):
 # [data] tables
 
 #: key -> (kind, description). Kinds: "int", "float", "str", "floats" (a list of numbers),
-#: "nvec" (n numbers), "mvec" (m numbers or one number).
+#: "nvec" (n numbers), "mvec" (m numbers or one number), "nrows" (a list of rows of n numbers).
 DATA_KEYS: dict[str, tuple[str, str]] = {
     "integrator": ("str", "cvodes | rk4"),
     "rate": ("float", "output rate [Hz]"),
@@ -70,6 +70,11 @@ DATA_KEYS: dict[str, tuple[str, str]] = {
     "fixed_step_train_trajectories": ("int", "of which for training"),
     "q0_low": ("nvec", "initial q, lower bounds"),
     "q0_high": ("nvec", "initial q, upper bounds"),
+    "q0_points": (
+        "nrows",
+        "initial q of the first trajectories, one row each (e.g. configurations the matrix "
+        "tables inspect that the drawn ones do not reach); their qd and inputs are still drawn",
+    ),
     "qd0_low": ("nvec", "initial qd, lower bounds"),
     "qd0_high": ("nvec", "initial qd, upper bounds"),
     "signal": ("str", "zero | sinusoid | multisine | step | chirp"),
@@ -111,6 +116,7 @@ class DataConfig:
     fixed_step_train_trajectories: int | None = None
     q0_low: tuple[float, ...] = ()
     q0_high: tuple[float, ...] = ()
+    q0_points: tuple[tuple[float, ...], ...] = ()
     qd0_low: tuple[float, ...] = ()
     qd0_high: tuple[float, ...] = ()
     signal: str = "zero"
@@ -178,6 +184,19 @@ def data_config(spec: ModelSpec, table: Mapping[str, Any] | None = None) -> Data
             if value not in options:
                 fail(key, f"expected one of {', '.join(options)}, got {value!r}")
             out[key] = value
+        elif kind == "nrows":
+            rows = value if isinstance(value, list) else None
+            if not rows or not all(
+                isinstance(r, list)
+                and len(r) == n
+                and all(
+                    isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
+                    for v in r
+                )
+                for r in rows
+            ):
+                fail(key, f"expected a list of rows of {n} finite numbers, got {value!r}")
+            out[key] = tuple(tuple(float(v) for v in r) for r in rows)
         else:
             vals = value if isinstance(value, list) else [value]
             if not vals or not all(
@@ -257,7 +276,9 @@ def draw_trajectories(
     seed: int | None = None,
 ) -> tuple[np.ndarray, list[Signal]]:
     """Initial states (K, 2n), uniform in the ``[data]`` ranges (zero where none is given), and
-    one input signal per trajectory; trajectory k draws both from ``default_rng([seed, k])``."""
+    one input signal per trajectory; trajectory k draws both from ``default_rng([seed, k])``.
+    Trajectory k < len(``q0_points``) then starts at ``q0_points[k]`` instead of its drawn q
+    (its qd and signal are the drawn ones, so no other trajectory changes)."""
     seed = cfg.seed if seed is None else seed
     kind = kind or cfg.signal
     lo = np.r_[cfg.q0_low or (0.0,) * n, cfg.qd0_low or (0.0,) * n]
@@ -267,6 +288,8 @@ def draw_trajectories(
     for row, k in enumerate(indices):
         rng = _rng(seed, k)
         x0[row] = lo + (hi - lo) * rng.uniform(size=2 * n)
+        if k < len(cfg.q0_points):
+            x0[row, :n] = cfg.q0_points[k]
         sigs.append(
             sample_signal(
                 kind,

@@ -216,11 +216,35 @@ def _spec(data_lines: str):
         ),
         ("q0_low = [0.0, 0.0]\nq0_high = [1.0, -1.0]\n", r"'data.q0_high': must not be below"),
         ("q0_low = [0.0, 0.0]\n", r"'data.q0_high': give both"),
+        ("q0_points = [[0.0, 0.0], [1.0]]\n", r"'data.q0_points': expected a list of rows of 2"),
+        ("q0_points = [0.0, 0.0]\n", r"'data.q0_points': expected a list of rows of 2"),
+        ("q0_points = []\n", r"'data.q0_points': expected a list of rows of 2"),
+        ("q0_points = [[0.0, nan]]\n", r"'data.q0_points': expected a list of rows of 2"),
     ],
 )
 def test_bad_data_tables(lines, match):
     with pytest.raises(DataError, match=match):
         data_config(_spec(lines))
+
+
+def test_q0_points_start_the_first_trajectories_and_change_nothing_else():
+    base = data_config(_spec("q0_low = [-1.0, -1.0]\nq0_high = [1.0, 1.0]\nseed = 5\n"))
+    points = data_config(
+        _spec(
+            "q0_low = [-1.0, -1.0]\nq0_high = [1.0, 1.0]\nseed = 5\n"
+            "q0_points = [[2.5, -3.0], [0.25, 0.5]]\n"
+        )
+    )
+    assert points.q0_points == ((2.5, -3.0), (0.25, 0.5))
+    x0, sigs = datasets.draw_trajectories(base, 2, 0, range(4))
+    y0, tigs = datasets.draw_trajectories(points, 2, 0, range(4))
+    np.testing.assert_array_equal(y0[:2, :2], [[2.5, -3.0], [0.25, 0.5]])
+    np.testing.assert_array_equal(y0[:2, 2:], x0[:2, 2:])  # velocities still drawn
+    np.testing.assert_array_equal(y0[2:], x0[2:])  # the other trajectories unchanged
+    assert [s.to_dict() for s in tigs] == [s.to_dict() for s in sigs]
+    # a subset of ids: the points belong to trajectory ids, not rows
+    z0, _ = datasets.draw_trajectories(points, 2, 0, [1, 3])
+    np.testing.assert_array_equal(z0, y0[[1, 3]])
 
 
 def test_every_preset_data_table_is_valid():
