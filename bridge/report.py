@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +67,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
         f"wall time {seconds:.0f} s on {machine_description()}.",
         "",
         "Errors as in Table III: train and test error are the one-step loss of eq. 8 (eq. 9 "
-        "for Hamiltonian models) per pair, mean ± std over pairs; the prediction error is the "
+        "for Hamiltonian models) with λ = 1 per pair, mean ± std over pairs; the prediction "
+        "error is the "
         "mean squared error of q over a rollout from the true initial state with the true "
         "inputs, mean ± std over test trajectories.",
         "",
@@ -187,6 +189,11 @@ def _integration_sentence(plan) -> str:
                  f"{'' if len(accel) > 1 else 's'} on the acceleration loss (eq. 10) with q̈ from "
                  f"{where}; for {'them' if len(accel) > 1 else 'it'} the RK4 steps above serve "
                  "prediction only.")
+    for k, m in plan.models.items():
+        if m.get("loss_weight", 1.0) != 1.0:
+            text += (f" The {_NETWORK[k]} network trains with λ = {m['loss_weight']:g} in eq. "
+                     f"{9 if k == 'hamiltonian' else 8}; its errors below use λ = 1, as every "
+                     "other model's do.")
     own = [f"the {v.name} data with {v.substeps}" for v in plan.variants if v.substeps]
     if own:
         text += (" Where the data step is longer than the true model's stable RK4 step, more "
@@ -216,7 +223,8 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
                  _fmt(r.get("alpha")), _fmt(r.get("distance_from_alpha_I"))]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     report = Path(an["report"])
-    lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]))
+    lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
+                            an.get("seeds"))
     lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
     scatter = report.parent / "scatter.png"
@@ -225,36 +233,70 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     return lines
 
 
-def _paper_q_lines(path: Path, kind: str, k: int) -> list[str]:
+def _paper_q_rows(path: Path, kind: str, k: int):
     """Residual of each matrix at each of the paper's k configurations, and over the sampled
     ones (all inside the data's range), for the headline transform: the direct comparison for
-    a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII)."""
+    a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII). Returns the
+    transform's name, its matrices, the row labels, the number of sampled q and one row of
+    residuals per label; None where there is no such analysis."""
     if not path.is_file():
-        return []
+        return None
     a = json.loads(path.read_text())
     name = "direct" if kind == "hamiltonian" else "alpha"
     tr = a["transforms"].get(name)
     if tr is None or not tr.get("residuals"):
-        return []
+        return None
     blocks = list(tr["residuals"])
     q = np.asarray(a["q"], float)
-    first = f"the paper's {k} configurations, then " if k else ""
-    lines = ["", f"Relative residual per configuration, transform `{name}`: {first}all "
-             f"{len(q) - k} sampled ones together:", "",
-             "| q | " + " | ".join(blocks) + " |", "|---|" + "---|" * len(blocks)]
+    labels, rows = [], []
     for i in range(min(k, len(q))):
-        cells = [_pct(tr["residuals"][b][i]) for b in blocks]
-        qi = ", ".join(f"{v:.4g}" for v in q[i])
-        lines.append(f"| [{qi}] | " + " | ".join(cells) + " |")
-    cells = []
+        labels.append("[" + ", ".join(f"{v:.4g}" for v in q[i]) + "]")
+        rows.append([_num(tr["residuals"][b][i]) for b in blocks])
+    row = []
     for b in blocks:  # ‖P X̂ − X‖/‖X‖ stacked over the sampled q, from the per-q residuals
         r = np.array([np.nan if v is None else v for v in tr["residuals"][b][k:]], float)
         norm = np.linalg.norm(np.asarray(a["true"][b], float)[k:].reshape(len(q) - k, -1),
                               axis=1)
         ok = np.isfinite(r)  # a residual is undefined (None) where the true matrix is 0
         total = np.sqrt(np.sum((r[ok] * norm[ok]) ** 2) / max(np.sum(norm[ok] ** 2), 1e-300))
-        cells.append(_pct(total if ok.any() else None))
-    lines.append(f"| sampled ({len(q) - k}) | " + " | ".join(cells) + " |")
+        row.append(float(total) if ok.any() else np.nan)
+    labels.append(f"sampled ({len(q) - k})")
+    rows.append(row)
+    return {"name": name, "blocks": blocks, "labels": labels, "sampled": len(q) - k,
+            "rows": np.asarray(rows, float)}
+
+
+def _num(x) -> float:
+    return np.nan if x is None else float(x)
+
+
+def _paper_q_lines(path: Path, kind: str, k: int, seeds: list[dict] | None = None) -> list[str]:
+    """The table of :func:`_paper_q_rows` for the first seed; with several seeds, a second one
+    of mean ± std over the seeds and the largest."""
+    got = _paper_q_rows(path, kind, k)
+    if got is None:
+        return []
+    blocks, labels, rows = got["blocks"], got["labels"], got["rows"]
+    first = f"the paper's {k} configurations, then " if k else ""
+    head = ["| q | " + " | ".join(blocks) + " |", "|---|" + "---|" * len(blocks)]
+    per_seed = [_paper_q_rows(Path(s["analysis"]), kind, k) for s in seeds or []]
+    per_seed = [g["rows"] for g in per_seed if g is not None and g["rows"].shape == rows.shape]
+    which = " (first seed)" if len(per_seed) > 1 else ""
+    lines = ["", f"Relative residual per configuration{which}, transform `{got['name']}`: "
+             f"{first}all {got['sampled']} sampled ones together:", "", *head]
+    lines += [f"| {lab} | " + " | ".join(_pct(v) for v in row) + " |"
+              for lab, row in zip(labels, rows, strict=True)]
+    if len(per_seed) > 1:
+        stack = np.stack(per_seed)
+        with warnings.catch_warnings():  # a residual undefined for every seed stays NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean, std, top = np.nanmean(stack, 0), np.nanstd(stack, 0), np.nanmax(stack, 0)
+        lines += ["", f"The same over all {len(per_seed)} seeds: mean ± std (largest).", "",
+                  *head]
+        for lab, m, s_, t in zip(labels, mean, std, top, strict=True):
+            cells = ["–" if not np.isfinite(a) else f"{100 * a:.2f} ± {100 * b:.2f} % "
+                     f"({100 * c:.2f} %)" for a, b, c in zip(m, s_, t, strict=True)]
+            lines.append(f"| {lab} | " + " | ".join(cells) + " |")
     return lines
 
 

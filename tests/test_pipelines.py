@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,6 +78,25 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
         assert (out / link).is_file(), link
     saved = json.loads((out / "results.json").read_text())
     assert saved["task"] == task and saved["quick"] is True
+    if task == "task3":
+        _errors_are_reported_at_lambda_one(result, text)
+
+
+def _errors_are_reported_at_lambda_one(result, text):
+    """Task 3's Hamiltonian network trains with λ = 0.1; its reported errors use λ = 1."""
+    from learn.data import load_dataset
+    from learn.predict import evaluate
+    from learn.train import load_run
+
+    entry = result.results["variants"]["main"]["models"]["hamiltonian"]
+    assert entry["train"]["config"]["loss_weight"] == 0.1
+    assert "Hamiltonian network trains with λ = 0.1 in eq. 9" in text
+    f = result.results["data"]["variants"]["main"]["physics"]
+    run, data = load_run(entry["train"]["run"]), load_dataset(f["path"])
+    test = {w: evaluate(run.model, data, f["test"], horizon=0.1, loss_weight=w,
+                        input_hold="linear").one_step_error["mean"] for w in (0.1, 1.0)}
+    assert entry["predict"]["test_error"]["mean"] == pytest.approx(test[1.0], rel=1e-9)
+    assert test[0.1] < 0.5 * test[1.0]  # the weight matters: the p part is most of the loss
 
 
 def test_second_call_skips_finished_stages(quick_runs):
@@ -127,6 +147,25 @@ def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
         assert new["best_test_loss"]["mean"] != old["best_test_loss"]["mean"], kind
 
 
+def test_seeds_report_mean_and_std_of_errors_and_matrices(tmp_path):
+    """--seeds K: every seed is trained, predicted and analysed; the report gives the first
+    seed's residual per configuration, then mean ± std (largest) over the seeds."""
+    result = reproduce(ReproduceConfig("task1", quick=True, seeds=2, epochs=10, lbfgs_steps=0),
+                       tmp_path / "t1", log=lambda _: None)
+    entry = result.results["variants"]["main"]["models"]["lagrangian"]
+    assert set(entry["predict"]["prediction_error"]["seeds"]) == {"mean", "std"}
+    seeds = entry["analyze"]["seeds"]
+    assert [s["seed"] for s in seeds] == [0, 1]
+    runs = [json.loads(Path(s["analysis"]).read_text()) for s in seeds]
+    assert runs[0]["q"] == runs[1]["q"]  # the same configurations for every seed
+    first = [r["transforms"]["alpha"]["residuals"]["M"][0] for r in runs]
+    assert first[0] != first[1]  # two networks, two analyses
+    text = result.report.read_text()
+    assert "The same over all 2 seeds: mean ± std (largest)." in text
+    mean, std, top = np.mean(first), np.std(first), np.max(first)
+    assert f"{100 * mean:.2f} ± {100 * std:.2f} % ({100 * top:.2f} %)" in text
+
+
 def test_plans_follow_the_paper():
     full = {t: make_plan(load_spec(t), ReproduceConfig(t)) for t in TASKS}
     assert full["task1"].horizon == 2.7 and full["task3"].horizon == 5.0
@@ -161,6 +200,9 @@ def test_plans_follow_the_paper():
         "accel", "differences")
     assert {m.get("loss", "pair") for t in TASKS for k, m in full[t].models.items()
             if (t, k) != ("task5", "lagrangian")} == {"pair"}
+    # task3's Hamiltonian network weighs q and p alike (λ = 0.1); every other model λ = 1
+    assert {(t, k): m["loss_weight"] for t in TASKS for k, m in full[t].models.items()
+            if "loss_weight" in m} == {("task3", "hamiltonian"): 0.1}
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000
