@@ -68,9 +68,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
         "",
         "Errors as in Table III: train and test error are the one-step loss of eq. 8 (eq. 9 "
         "for Hamiltonian models) with λ = 1 per pair, mean ± std over pairs; the prediction "
-        "error is the "
-        "mean squared error of q over a rollout from the true initial state with the true "
-        "inputs, mean ± std over test trajectories.",
+        "error is the mean squared error of q over a rollout from the true initial state with "
+        "the true inputs, mean ± std over test trajectories.",
         "",
         _integration_sentence(plan),
         "",
