@@ -253,7 +253,7 @@ def _paper_q_rows(path: Path, kind: str, k: int):
         rows.append([_num(tr["residuals"][b][i]) for b in blocks])
     row = []
     for b in blocks:  # ‖P X̂ − X‖/‖X‖ stacked over the sampled q, from the per-q residuals
-        r = np.array([np.nan if v is None else v for v in tr["residuals"][b][k:]], float)
+        r = np.array([_num(v) for v in tr["residuals"][b][k:]], float)
         norm = np.linalg.norm(np.asarray(a["true"][b], float)[k:].reshape(len(q) - k, -1),
                               axis=1)
         ok = np.isfinite(r)  # a residual is undefined (None) where the true matrix is 0
