@@ -32,6 +32,12 @@ def _model_size(kind: str, m: dict) -> str:
     return f"({mass[0]}*{mass[1]})*2 + {d[0]}*{d[1]} + {a[0]}*{a[1]}"
 
 
+def _epochs(trained: dict) -> int | str:
+    """AdamW epochs, and the L-BFGS iterations after them where there were any."""
+    lbfgs = int(trained.get("config", {}).get("lbfgs_steps", 0))
+    return f"{trained['epochs']} + {lbfgs} L-BFGS" if lbfgs else trained["epochs"]
+
+
 def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
     pr, tr = entry["predict"], entry["train"]
     m = plan.models[kind]
@@ -41,7 +47,7 @@ def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
         "timestep_s": files["timestep"],
         "model": _model_size(kind, m),
         "samples": pairs.get("train", tr.get("samples")),
-        "epochs": tr["epochs"],
+        "epochs": _epochs(tr),
         "train_error": {"mean": pr["train_error"]["mean"], "std": pr["train_error"]["std"]},
         "test_error": {"mean": pr["test_error"]["mean"], "std": pr["test_error"]["std"]},
         "prediction_error": {

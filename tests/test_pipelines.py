@@ -203,6 +203,13 @@ def test_plans_follow_the_paper():
     # task3's Hamiltonian network weighs q and p alike (λ = 0.1); every other model λ = 1
     assert {(t, k): m["loss_weight"] for t in TASKS for k, m in full[t].models.items()
             if "loss_weight" in m} == {("task3", "hamiltonian"): 0.1}
+    # task3's Hamiltonian network alone gets an L-BFGS finish; quick plans and --lbfgs-steps none
+    assert {(t, k): m["lbfgs"] for t in TASKS for k, m in full[t].models.items()
+            if m["lbfgs"]} == {("task3", "hamiltonian"): 200}
+    assert make_plan(load_spec("task3"), ReproduceConfig("task3", quick=True)).models[
+        "hamiltonian"]["lbfgs"] == 0
+    assert make_plan(load_spec("task3"), ReproduceConfig("task3", lbfgs_steps=0)).models[
+        "hamiltonian"]["lbfgs"] == 0
     assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
     assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
     assert full["task4"].physics_samples == 8000

@@ -212,6 +212,16 @@ def test_table_iii_comparison_puts_paper_numbers_in():
     assert t5.rows[0][2:] == ("—",) * 7  # no black-box model at 1000 Hz in the paper
 
 
+def test_our_epochs_cell_counts_an_lbfgs_finish():
+    from bridge.report import _epochs
+
+    assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 200}}) == "400 + 200 L-BFGS"
+    assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 0}}) == 400
+    ours = {"physics": {"model": "m", "epochs": _epochs(
+        {"epochs": 400, "config": {"lbfgs_steps": 200}})}}
+    assert "| m | — | 400 + 200 L-BFGS |" in to_markdown(table_iii_comparison("task3", ours))
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
