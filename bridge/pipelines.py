@@ -54,9 +54,9 @@ FULL_BUDGETS: dict[str, dict[str, dict[str, float]]] = {
     # its test loss down on every seed, for about 6 min per seed
     "task3": {"hamiltonian": {"epochs": 400, "lbfgs": 200}, "blackbox": {"epochs": 400}},
     # task4's Hamiltonian network: 1000 L-BFGS iterations after AdamW took its test loss from
-    # 7.2e-9 to 3.0e-9 and its 5 s prediction error from 2.2e-4 to 1.0e-4 (about 7 min); its
-    # matrices barely moved (sampled q: M⁻¹ 2.0 -> 1.7 %, D 5.7 -> 6.2 %, G 4.9 -> 4.2 %, A
-    # 9.8 -> 9.4 %), and 200 iterations gave 2.1e-4
+    # 7.2e-9 to 3.0e-9 and its 5 s prediction error from 2.2e-4 to 1.0e-4 (about 7 min; the
+    # full run: 8.6e-5); its matrices barely moved (sampled q: M⁻¹ 2.0 -> 1.7 %, D 5.7 ->
+    # 6.2 %, G 4.9 -> 4.2 %, A 9.8 -> 9.4 %), and 200 iterations gave 2.1e-4
     "task4": {
         "lagrangian": {"epochs": 400},
         "hamiltonian": {"epochs": 300, "lbfgs": 1000},

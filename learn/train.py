@@ -844,6 +844,13 @@ def train(
         if stored.get("format") != FORMAT:
             raise UserError(f"{run_dir}/config.json: not a softpinn run directory")
         stored_cfg = TrainConfig.from_dict(stored["train"])
+        if stored_cfg.seeds > 1 and "members" not in stored:
+            # a member folder: resuming it alone would start a new K-member ensemble inside it
+            raise UserError(
+                f"--resume: {run_dir} holds one member (seed {stored.get('seed')}) of a "
+                f"{stored_cfg.seeds}-member ensemble; resume the ensemble's directory "
+                f"({run_dir.parent} if this folder was not moved): its members resume together"
+            )
         if config is not None and config != stored_cfg:
             diff = [
                 f.name

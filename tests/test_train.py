@@ -130,6 +130,12 @@ def test_ensemble_members_equal_single_runs(msd, tmp_path):
     assert [r.seed for r in members] == [3, 4]
     assert load_run(tmp_path / "vmap").seed == vm.metrics["best_member"]
     assert_same_params(load_run(tmp_path / "vmap", member=4).model, vm.members[1].model, exact=True)
+    # a member folder is not resumed on its own (it would start a new ensemble inside it)
+    before = sorted(p.name for p in (tmp_path / "vmap" / "seed-3").iterdir())
+    msg = r"seed-3 holds one member \(seed 3\) of a 2-member ensemble; resume the ensemble's"
+    with pytest.raises(UserError, match=msg + r" directory \(.*vmap if"):
+        train(msd, None, tmp_path / "vmap" / "seed-3", resume=True)
+    assert sorted(p.name for p in (tmp_path / "vmap" / "seed-3").iterdir()) == before
 
 
 class _StopAt:
