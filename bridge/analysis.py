@@ -22,6 +22,8 @@ from typing import Any
 import numpy as np
 
 from .errors import UserError
+from .forces import ForceComparison, compare_forces
+from .forces import markdown_lines as force_lines
 from .plots import plot_entries_scatter, plot_transform_entries
 from .tables import summary_table, to_markdown, transform_table, write_table
 from .transforms import (
@@ -48,6 +50,7 @@ class AnalysisResult:
     learned_kind: str | None
     results: Mapping[str, TransformResult]
     meta: Mapping[str, Any] = field(default_factory=dict)
+    forces: ForceComparison | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Every number, JSON-ready (NaN and inf as None)."""
@@ -60,6 +63,7 @@ class AnalysisResult:
                 "true": side(self.true),
                 "learned": side(self.learned),
                 "transforms": {k: r.to_dict() for k, r in self.results.items()},
+                "forces": None if self.forces is None else self.forces.to_dict(),
             }
         )
 
@@ -164,6 +168,7 @@ def analyze(
     transforms: Sequence[str] = DEFAULT_TRANSFORMS,
     options: Mapping[str, Mapping[str, Any]] | None = None,
     progress: Callable[[str, int, int], None] | None = None,
+    samples: tuple | None = None,
 ) -> AnalysisResult:
     """Evaluate both models at ``q_points`` (N, n) and run each transform.
 
@@ -171,6 +176,11 @@ def analyze(
     e.g. ``{"smooth": {"degree": 3, "ridge": 1e-8}}``. For a Hamiltonian model (config kind
     ``"hamiltonian"``) the direct comparison (no transform, P = I) is added first.
     ``progress(stage, done, total)`` is called after each step (the CLI draws a bar).
+
+    ``samples``: data samples ``(q, qd, u)`` or ``(q, qd, u, meta)`` (see
+    :func:`bridge.forces.data_samples`); both models' force terms G, D q̇, A u and their sum are
+    then compared along them (:func:`bridge.forces.compare_forces`; a Lagrangian model's
+    divided by the fitted α, so ``"alpha"`` must be among the transforms).
     """
     transforms = (transforms,) if isinstance(transforms, str) else tuple(transforms)
     for name in transforms:
@@ -204,6 +214,9 @@ def analyze(
         results[name] = fit_transform(name, true, learned, q, **dict(options.get(name, {})))
         if progress:
             progress(name, 3 + i, total)
+    forces = None
+    if samples is not None:
+        forces = _forces(true_model, learned_model, kind, results, samples)
     spec = getattr(true_model, "spec", None)
     meta = {
         "N": true.N,
@@ -214,7 +227,34 @@ def analyze(
         "transforms": list(transforms),
         "options": options,
     }
-    return AnalysisResult(q, true, learned, kind, results, meta)
+    return AnalysisResult(q, true, learned, kind, results, meta, forces)
+
+
+def _forces(true_model, learned_model, kind, results, samples) -> ForceComparison:
+    if not isinstance(samples, tuple | list) or len(samples) not in (3, 4):
+        raise UserError("samples: expected (q, qd, u) or (q, qd, u, meta)")
+    qs, qd, u = samples[:3]
+    meta = dict(samples[3]) if len(samples) == 4 else {}
+    qs = np.asarray(qs, dtype=np.float64)
+    if qs.ndim != 2 or len(qs) == 0:
+        raise UserError(f"samples: q expected shape (N, n) with N > 0, got {qs.shape}")
+    if kind == "hamiltonian":
+        scale = 1.0
+    elif "alpha" in results and np.isfinite(results["alpha"].alpha):
+        scale = 1.0 / results["alpha"].alpha
+        meta["scale_from"] = "alpha"
+    else:
+        raise UserError(
+            "samples: comparing a Lagrangian model's forces needs the 'alpha' transform "
+            "(learned ~= alpha * true)"
+        )
+    n = getattr(true_model, "n", None)
+    if n is not None:
+        check_q(qs, len(qs), int(n))
+    true = true_matrices(true_model, qs)
+    check_q(qs, true.N, true.n)
+    learned = learned_matrices(learned_model, qs)
+    return compare_forces(true, learned, qd, u, scale=scale, meta=meta)
 
 
 # --------------------------------------------------------------------------------------------
@@ -299,6 +339,8 @@ def write_report(
             "",
             to_markdown(_first_q(tables[name], k), precision=precision),
         ]
+    if result.forces is not None:
+        lines += force_lines(result.forces.to_dict())
     if plots:
         lines += [
             "## Entries: true vs (transformed) learned, one row per transform",

@@ -29,6 +29,11 @@ def register(subparsers) -> None:
     p.add_argument("--transform", nargs="+", default=None, metavar="NAME",
                    help="pointwise, joint, alpha, constant, smooth, direct (default: all but "
                         "direct; direct is added for Hamiltonian models)")
+    p.add_argument("--data", metavar="DATA.npz", default=None,
+                   help="compare the force terms G, D q̇, A u along these data (default: the "
+                        "run's own data set, its training trajectories)")
+    p.add_argument("--samples", type=int, default=2000,
+                   help="data samples for the force comparison (default 2000; 0: none)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print every number as one JSON object")
     p.set_defaults(func=cmd_analyze)
@@ -91,13 +96,46 @@ def cmd_analyze(args) -> int:
             transforms = tuple(t for t in transforms if t != "smooth")
     else:
         q, k = analysis_q(spec, count=args.points)
-    result = analyze(TrueModel(spec), run.model, q, transforms=transforms)
+    samples = _force_samples(run, args.data, args.samples, transforms)
+    result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
     paths = write_report(result, args.out, max_table_q=max(k, 3))
     if args.json:
         print(json.dumps(result.to_dict()))
     else:
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
+
+
+def _force_samples(run, data_path, count, transforms):
+    """Samples for the force comparison: from ``data_path`` (the run's training trajectories
+    when it is the run's own data set, else all), or by default from the run's data set; None
+    when ``count`` is 0 or, by default, the run's data set is gone (said on stderr)."""
+    from pathlib import Path
+
+    from learn.data import load_dataset
+
+    from .forces import data_samples
+
+    if count < 0:
+        raise UserError(f"--samples: expected 0 or more, got {count}")
+    if count == 0:
+        return None
+    if run.model_config.kind != "hamiltonian" and "alpha" not in transforms:
+        if data_path is not None:
+            raise UserError("--data: a Lagrangian model's forces are compared through the "
+                            "alpha transform; add alpha to --transform")
+        return None
+    recorded = run.info.get("dataset", {})
+    if data_path is None:
+        data_path = recorded.get("path")
+        if not data_path or not Path(data_path).is_file():
+            print(f"softpinn: note: no force comparison: the run's data set {data_path} is not "
+                  "there (give --data)", file=sys.stderr)
+            return None
+    data = load_dataset(data_path, n=run.model_config.n, m=run.model_config.m)
+    own = data.sha256 == recorded.get("sha256")
+    ids = run.info.get("split", {}).get("train") if own else None
+    return data_samples(data, ids, count=count)
 
 
 def cmd_reproduce(args) -> int:

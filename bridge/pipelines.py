@@ -421,7 +421,8 @@ def reproduce(
             if kind != "blackbox":
                 entry["analyze"] = stages.run(
                     f"analyze/{variant.name}/{kind}",
-                    {"train": settings, "points": plan.analysis_points, "every_seed": True},
+                    {"train": settings, "points": plan.analysis_points, "every_seed": True,
+                     "force_samples": plan.analysis_points * 10},
                     lambda d, t=tr: _stage_analyze(spec, plan, t, d),
                 )
             vres["models"][kind] = entry
@@ -732,17 +733,22 @@ def _truncated_error(rollout: dict, horizon: float) -> float:
 def _stage_analyze(spec, plan: Plan, trained: dict, folder: Path) -> dict:
     """Every seed's learned matrices against the true ones at the same q: the first seed's
     analysis in ``folder`` (the report's headline), each further seed's in ``folder/seed-S``."""
+    from learn.data import load_dataset
     from learn.train import load_ensemble
     from symbolic.model import TrueModel
 
     from .analysis import analysis_q, analyze, summary_numbers, write_report
+    from .forces import data_samples
 
     true = TrueModel(spec)
     q, k = analysis_q(spec, count=plan.analysis_points, seed=0)
     seeds = []
     for i, run in enumerate(load_ensemble(trained["run"])):
         where = folder if i == 0 else folder / f"seed-{run.seed}"
-        result = analyze(true, run.model, q)
+        # the force terms along the training trajectories the model learned from
+        data = load_dataset(run.info["dataset"]["path"])
+        samples = data_samples(data, run.info["split"]["train"], count=plan.analysis_points * 10)
+        result = analyze(true, run.model, q, samples=samples)
         write_report(result, where, max_table_q=max(k, 3))
         seeds.append({"seed": run.seed, "summary": summary_numbers(result),
                       "analysis": str(where / "analysis.json")})

@@ -230,12 +230,23 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     report = Path(an["report"])
     lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
                             an.get("seeds"))
+    lines += _force_lines(report.parent / "analysis.json")
     lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
     scatter = report.parent / "scatter.png"
     if scatter.is_file():
         lines += [f"![true against transformed learned entries]({_rel(scatter, out)})", ""]
     return lines
+
+
+def _force_lines(path: Path) -> list[str]:
+    """The first seed's force terms along its training data (:mod:`bridge.forces`)."""
+    if not path.is_file():
+        return []
+    from .forces import markdown_lines
+
+    forces = json.loads(path.read_text()).get("forces")
+    return ([""] + markdown_lines(forces, heading=None)[:-1]) if forces else []
 
 
 def _paper_q_rows(path: Path, kind: str, k: int):

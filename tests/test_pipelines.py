@@ -39,6 +39,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     assert "Time scales: eigenvalues" in text and "| true |" in text
     # residuals at each of the paper's configurations, then over the sampled ones
     assert "Relative residual per configuration" in text and "| sampled (" in text
+    assert "Force terms along" in text and "| A u − G − D q̇ |" in text
     variants = result.results["variants"]
     assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
     for vname, vres in variants.items():
@@ -67,6 +68,13 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
                 else:
                     assert "direct" in summary
                 assert (out / "analyze" / vname / kind / "report.md").is_file()
+                # the force terms along the model's own training trajectories
+                an = json.loads((out / "analyze" / vname / kind / "analysis.json").read_text())
+                forces = an["forces"]
+                assert forces["samples"] > 0 and math.isfinite(forces["error"]["G"])
+                trained = json.loads(
+                    (out / "train" / vname / kind / "run" / "config.json").read_text())
+                assert forces["meta"]["trajectories"] == trained["split"]["train"]
     assert list((out / "tables").glob("table_iii_*.csv"))
     figures = {p.name for p in (out / "figures").glob("*.png")}
     assert any(f.startswith("loss_") for f in figures)
@@ -241,6 +249,22 @@ def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
     assert np.asarray(payload["q"]).shape == (3, 2)
     assert set(payload["transforms"]) == {"alpha", "pointwise"}
     assert (out / "report.md").is_file()
+    # the forces along the run's own training trajectories, learned ones divided by alpha
+    forces = payload["forces"]
+    assert forces["samples"] > 0 and forces["meta"]["scale_from"] == "alpha"
+    assert "## Forces along the data" in (out / "report.md").read_text()
+    assert main(["analyze", str(run), "task1", "--samples", "0", "--transform", "alpha",
+                 "--out", str(tmp_path / "f"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["forces"] is None
+    assert main(["analyze", str(run), "task1", "--samples", "-1", "--out",
+                 str(tmp_path / "g")]) == 2
+    assert "--samples" in _err(capsys)
+    assert main(["analyze", str(run), "task1", "--data", str(tmp_path / "none.npz"), "--out",
+                 str(tmp_path / "h")]) == 2
+    assert "none.npz" in _err(capsys)
+    assert main(["analyze", str(run), "task1", "--data", str(tmp_path / "none.npz"),
+                 "--transform", "pointwise", "--out", str(tmp_path / "i")]) == 2
+    assert "add alpha to --transform" in _err(capsys)
     # a run of another model size
     assert main(["analyze", str(run), "task4", "--out", str(tmp_path / "b")]) == 2
     assert "n=2" in _err(capsys)

@@ -1,0 +1,160 @@
+"""bridge.forces: learned against true force terms G, D q̇, A u along data samples."""
+
+from __future__ import annotations
+
+import json
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_analysis import ScaledTask1
+
+from bridge.analysis import analyze, sample_q, write_report
+from bridge.errors import UserError
+from bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
+from bridge.matrices import MatrixStack
+from symbolic.model import TrueModel
+
+
+def _stacks(N=400, n=3, m=2, seed=0):
+    """Random matrices at N configurations, and velocities and inputs to go with them."""
+    rng = np.random.default_rng(seed)
+    B = rng.normal(size=(N, n, n))
+    D = B @ B.transpose(0, 2, 1) + np.eye(n)
+    A = rng.normal(size=(N, n, m))
+    G = rng.normal(size=(N, n))
+    qd, u = rng.normal(size=(N, n)), rng.normal(size=(N, m))
+    return {"D": D, "A": A, "G": G}, qd, u
+
+
+def test_terms_are_the_right_hand_side_of_eq_1():
+    mats, qd, u = _stacks(N=5)
+    terms = force_terms(MatrixStack(**mats), qd, u)
+    k = 3
+    np.testing.assert_allclose(terms["D_qd"][k], mats["D"][k] @ qd[k], rtol=1e-14)
+    np.testing.assert_allclose(terms["A_u"][k], mats["A"][k] @ u[k], rtol=1e-14)
+    np.testing.assert_allclose(
+        terms["net"][k], mats["A"][k] @ u[k] - mats["G"][k] - mats["D"][k] @ qd[k], rtol=1e-13
+    )
+
+
+def test_exact_model_has_zero_errors_and_a_scaled_one_is_undone_by_scale():
+    mats, qd, u = _stacks()
+    true = MatrixStack(**mats)
+    same = compare_forces(true, MatrixStack(**mats), qd, u)
+    assert all(e == 0.0 for e in same.error.values())
+    assert same.cancellation is None and "exactly" in same.message
+    doubled = MatrixStack(**{k: 2.0 * v for k, v in mats.items()})
+    r = compare_forces(true, doubled, qd, u, scale=0.5)
+    assert max(r.error.values()) < 1e-15
+    assert compare_forces(true, doubled, qd, u).error["G"] == pytest.approx(1.0, rel=1e-14)
+
+
+def test_a_shared_error_of_G_and_A_at_equilibrium_cancels_in_the_net_force():
+    """Inputs that balance the potential force (A u = G at every sample): a learned model with
+    G and A both 5 % too large has the same net force, so the cancellation is 0."""
+    mats, qd, u = _stacks(m=3)
+    mats["G"] = np.einsum("kij,kj->ki", mats["A"], u)
+    eps = 0.05
+    learned = dict(mats, G=(1 + eps) * mats["G"], A=(1 + eps) * mats["A"])
+    r = compare_forces(MatrixStack(**mats), MatrixStack(**learned), qd, u)
+    assert r.error["G"] == pytest.approx(eps, rel=1e-12)
+    assert r.error["A_u"] == pytest.approx(eps, rel=1e-12)
+    assert r.error["D_qd"] == 0.0 and r.error["net"] < 1e-14
+    assert r.cancellation < 1e-13 and r.alignment == pytest.approx(1.0, abs=1e-14)
+    assert "cancel along the data" in r.message and "equilibrium" in r.message
+
+
+def test_independent_errors_do_not_cancel():
+    mats, qd, u = _stacks(N=4000)
+    rng = np.random.default_rng(1)
+    learned = {k: v + 0.01 * rng.normal(size=v.shape) for k, v in mats.items()}
+    r = compare_forces(MatrixStack(**mats), MatrixStack(**learned), qd, u)
+    assert 0.9 < r.cancellation < 1.1
+    assert "do not cancel" in r.message
+    assert abs(r.alignment) < 0.1  # unrelated random G and A u
+
+
+def test_analyze_compares_forces_of_a_lagrangian_model_through_alpha(tmp_path):
+    """ScaledTask1 is 0.302 times the true Task 1 model: divided by the fitted alpha its forces
+    are the true ones; Task 1 has no inputs, so A u is zero and its error undefined."""
+    task1 = TrueModel("task1")
+    q = sample_q([-1, -1], [1, 1], 12, seed=3)
+    rng = np.random.default_rng(4)
+    qs, qd = rng.uniform(-1, 1, (30, 2)), rng.normal(size=(30, 2))
+    meta = {"data": "/somewhere/data.npz", "trajectories": [0, 1, 2, 5]}
+    result = analyze(task1, ScaledTask1(), q, transforms=("alpha",),
+                     samples=(qs, qd, np.zeros((30, 0)), meta))
+    f = result.forces
+    assert f.samples == 30 and f.scale == pytest.approx(1 / 0.302, rel=1e-12)
+    assert f.error["G"] < 1e-12 and f.error["D_qd"] < 1e-12 and f.error["net"] < 1e-12
+    assert f.error["A_u"] is None and f.alignment is None
+    assert f.meta["scale_from"] == "alpha"
+    paths = write_report(result, tmp_path, plots=False)
+    saved = json.loads(paths["analysis.json"].read_text())["forces"]
+    assert saved["error"]["A_u"] is None and saved["samples"] == 30
+    text = paths["report.md"].read_text()
+    assert "## Forces along the data" in text and "`data.npz` (trajectories 0-2, 5)" in text
+    assert "| A u | 0 | — |" in text
+    # without samples there is no force comparison
+    assert analyze(task1, ScaledTask1(), q, transforms=("alpha",)).forces is None
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"qd": np.zeros((5, 3))}, r"qd: expected shape \(400, 3\)"),
+        ({"u": np.zeros((400, 1))}, r"u: expected shape \(400, 2\)"),
+        ({"qd": np.full((400, 3), np.nan)}, "qd: contains NaN"),
+        ({"scale": 0.0}, "scale: expected a finite non-zero"),
+        ({"learned_n": 2}, "does not match the true n = 3"),
+    ],
+)
+def test_bad_input(change, match):
+    mats, qd, u = _stacks()
+    learned = MatrixStack(**mats)
+    if change.pop("learned_n", None):
+        learned = MatrixStack(G=mats["G"][:, :2])
+    kwargs = {"qd": qd, "u": u, "scale": 1.0, **change}
+    with pytest.raises(UserError, match=match):
+        compare_forces(MatrixStack(**mats), learned, **kwargs)
+
+
+def test_analyze_rejects_bad_samples():
+    task1 = TrueModel("task1")
+    q = sample_q([-1, -1], [1, 1], 4, seed=0)
+    with pytest.raises(UserError, match=r"samples: expected \(q, qd, u\)"):
+        analyze(task1, ScaledTask1(), q, transforms=("alpha",), samples=(q,))
+    with pytest.raises(UserError, match="needs the 'alpha' transform"):
+        analyze(task1, ScaledTask1(), q, transforms=("pointwise",),
+                samples=(q, q, np.zeros((4, 0))))
+    with pytest.raises(UserError, match="q: expected length n = 2"):
+        analyze(task1, ScaledTask1(), q, transforms=("alpha",),
+                samples=(np.zeros((4, 3)), q, np.zeros((4, 0))))
+
+
+def test_data_samples_are_seeded_and_stay_in_the_trajectories():
+    traj = np.repeat(np.arange(5), 100)
+    data = SimpleNamespace(
+        path="d.npz", sha256="abc", traj=traj, q=np.arange(500.0)[:, None],
+        qd=-np.arange(500.0)[:, None], u=np.zeros((500, 0)),
+    )  # fmt: skip
+    q, qd, u, meta = data_samples(data, [1, 3], count=50, seed=7)
+    assert len(q) == 50 and np.all(np.isin(traj[q[:, 0].astype(int)], [1, 3]))
+    np.testing.assert_array_equal(qd, -q)
+    np.testing.assert_array_equal(data_samples(data, [1, 3], count=50, seed=7)[0], q)
+    assert meta["pool"] == 200 and meta["trajectories"] == [1, 3]
+    assert len(data_samples(data, None, count=10_000)[0]) == 500  # all of them, no more
+    with pytest.raises(UserError, match=r"trajectories: \[9\] are not in the data set d.npz"):
+        data_samples(data, [1, 9])
+    with pytest.raises(UserError, match="samples: expected a positive count"):
+        data_samples(data, None, count=0)
+
+
+def test_markdown_lines_without_heading():
+    assert markdown_lines(None) == []
+    mats, qd, u = _stacks()
+    d = compare_forces(MatrixStack(**mats), MatrixStack(**mats), qd, u).to_dict()
+    lines = markdown_lines(d, heading=None)
+    assert lines[0].startswith("Force terms along 400 data samples")
+    assert "| A u − G − D q̇ |" in "\n".join(lines)
