@@ -2,10 +2,11 @@
 
 The matrices of :mod:`bridge.analysis` are compared at configurations q alone. What the
 training data see is their action on the data's own velocities and inputs: the potential
-force ``G(q)``, the damping force ``D(q) q̇``, the input force ``A(q) u`` and the net force
-``A u − G − D q̇``, the right-hand side of eq. 1 without the inertial terms (eq. 4 gives
-``F_d = D q̇``, eqs. 6 and 7 carry the same terms). :func:`compare_forces` evaluates these four
-at data samples for both models and reports the relative error of each.
+force ``G(q) = ∂V/∂q``, the damping force ``D(q) q̇`` (eq. 4), the input force ``A(q) u``
+(eq. 5) and the net force ``A u − G − D q̇``: eq. 1's generalized force Q less the potential
+force, all that moves the arm beside its inertia (eqs. 6 and 7 carry the same terms).
+:func:`compare_forces` evaluates these four at data samples for both models and reports the
+relative error of each.
 
 Why: when the data excite two terms together, say inputs that hold the arm near equilibrium so
 that ``A u ≈ G`` all along, the one-step losses of eqs. 8-9 fix their difference far better
