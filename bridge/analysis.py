@@ -24,7 +24,7 @@ import numpy as np
 from .errors import UserError
 from .forces import ForceComparison, compare_forces
 from .forces import markdown_lines as force_lines
-from .plots import plot_entries_scatter, plot_transform_entries
+from .plots import plot_entries_scatter, plot_forces, plot_transform_entries
 from .tables import summary_table, to_markdown, transform_table, write_table
 from .transforms import (
     MATRICES,
@@ -312,6 +312,10 @@ def write_report(
         p = out / "P_entries.png"
         plot_transform_entries(result.q, result.results, path=p)
         paths[p.name] = p
+        if result.forces is not None and result.forces.terms:
+            p = out / "forces.png"
+            plot_forces(result.forces, path=p)
+            paths[p.name] = p
 
     k = min(max_table_q, len(result.q))
     lines = [
@@ -341,6 +345,8 @@ def write_report(
         ]
     if result.forces is not None:
         lines += force_lines(result.forces.to_dict())
+        if "forces.png" in paths:
+            lines += ["![force terms, true against learned](forces.png)", ""]
     if plots:
         lines += [
             "## Entries: true vs (transformed) learned, one row per transform",

@@ -50,6 +50,8 @@ class ForceComparison:
             when the inputs hold the arm near equilibrium (None without inputs).
         message: one line saying what the numbers mean.
         meta: where the samples came from (data file, trajectories, seed).
+        terms: per term, the true and the scaled learned force at each sample, (N, n) each
+            (for plots; not in :meth:`to_dict`).
     """
 
     samples: int
@@ -60,6 +62,7 @@ class ForceComparison:
     alignment: float | None
     message: str
     meta: dict[str, Any] = field(default_factory=dict)
+    terms: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -124,7 +127,7 @@ def compare_forces(
     return ForceComparison(
         samples=N, scale=float(scale), rms=rms, error=err, cancellation=cancellation,
         alignment=alignment, message=_message(cancellation, alignment),
-        meta=dict(meta or {}),
+        meta=dict(meta or {}), terms={k: (ft[k], scale * fl[k]) for k in TERMS},
     )  # fmt: skip
 
 

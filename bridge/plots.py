@@ -136,3 +136,44 @@ def plot_transform_entries(
     fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
     fig.tight_layout()
     return _save(fig, path)
+
+
+def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> Figure:
+    """True against learned force terms along the data (:class:`bridge.forces.ForceComparison`),
+    one panel per term that is not zero, with the identity line; with inputs, a last panel of
+    the learned A u's error against G's, per component: points on the identity are errors that
+    cancel in the net force A u − G − D q̇."""
+    from .forces import LABELS, TERMS
+
+    terms = getattr(forces, "terms", None)
+    if not terms:
+        raise UserError("forces: no per-sample terms to plot (compare_forces makes them)")
+    keys = [k for k in TERMS if np.any(terms[k][0] != 0)]
+    pair = forces.error.get("A_u") is not None and forces.error.get("G") is not None
+    fig = Figure(figsize=(3.0 * (len(keys) + pair), 3.4))
+    axes = fig.subplots(1, len(keys) + pair, squeeze=False)[0]
+    for ax, k in zip(axes, keys, strict=False):
+        x, y = terms[k][0].ravel(), terms[k][1].ravel()
+        _identity_scatter(ax, x, y)
+        err = forces.error[k]
+        ax.set_title(LABELS[k] + ("" if err is None else f"  ({100 * err:.2g} %)"))
+        ax.set_xlabel("true")
+        ax.set_ylabel("learned" if forces.scale == 1 else "learned / α")
+    if pair:
+        ax = axes[-1]
+        eg = (terms["G"][1] - terms["G"][0]).ravel()
+        ea = (terms["A_u"][1] - terms["A_u"][0]).ravel()
+        _identity_scatter(ax, eg, ea)
+        ax.set_title(f"errors (cancellation {forces.cancellation:.2g})")
+        ax.set_xlabel("error of G")
+        ax.set_ylabel("error of A u")
+    fig.suptitle(title or f"force terms along {forces.samples} data samples (dashed: identity)")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _identity_scatter(ax, x, y) -> None:
+    ax.scatter(x, y, s=4, alpha=0.4)
+    lo, hi = float(min(x.min(), y.min())), float(max(x.max(), y.max()))
+    pad = 0.05 * (hi - lo or 1.0)
+    ax.plot([lo - pad, hi + pad], [lo - pad, hi + pad], "k--", lw=0.8)

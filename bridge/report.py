@@ -230,7 +230,7 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     report = Path(an["report"])
     lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
                             an.get("seeds"))
-    lines += _force_lines(report.parent / "analysis.json")
+    lines += _force_lines(report.parent, out)
     lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
     scatter = report.parent / "scatter.png"
@@ -239,14 +239,20 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     return lines
 
 
-def _force_lines(path: Path) -> list[str]:
+def _force_lines(folder: Path, out: Path) -> list[str]:
     """The first seed's force terms along its training data (:mod:`bridge.forces`)."""
+    path = folder / "analysis.json"
     if not path.is_file():
         return []
     from .forces import markdown_lines
 
     forces = json.loads(path.read_text()).get("forces")
-    return ([""] + markdown_lines(forces, heading=None)[:-1]) if forces else []
+    if not forces:
+        return []
+    lines = [""] + markdown_lines(forces, heading=None)[:-1]
+    if (folder / "forces.png").is_file():
+        lines += ["", f"![force terms, true against learned]({_rel(folder / 'forces.png', out)})"]
+    return lines
 
 
 def _paper_q_rows(path: Path, kind: str, k: int):

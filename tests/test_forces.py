@@ -13,6 +13,7 @@ from bridge.analysis import analyze, sample_q, write_report
 from bridge.errors import UserError
 from bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
 from bridge.matrices import MatrixStack
+from bridge.plots import plot_forces
 from symbolic.model import TrueModel
 
 
@@ -50,7 +51,7 @@ def test_exact_model_has_zero_errors_and_a_scaled_one_is_undone_by_scale():
     assert compare_forces(true, doubled, qd, u).error["G"] == pytest.approx(1.0, rel=1e-14)
 
 
-def test_a_shared_error_of_G_and_A_at_equilibrium_cancels_in_the_net_force():
+def test_a_shared_error_of_G_and_A_at_equilibrium_cancels_in_the_net_force(tmp_path):
     """Inputs that balance the potential force (A u = G at every sample): a learned model with
     G and A both 5 % too large has the same net force, so the cancellation is 0."""
     mats, qd, u = _stacks(m=3)
@@ -63,6 +64,10 @@ def test_a_shared_error_of_G_and_A_at_equilibrium_cancels_in_the_net_force():
     assert r.error["D_qd"] == 0.0 and r.error["net"] < 1e-14
     assert r.cancellation < 1e-13 and r.alignment == pytest.approx(1.0, abs=1e-14)
     assert "cancel along the data" in r.message and "equilibrium" in r.message
+    fig = plot_forces(r, path=tmp_path / "f.png")  # the four terms, then the errors of G, A u
+    assert len(fig.axes) == 5 and (tmp_path / "f.png").is_file()
+    with pytest.raises(UserError, match="no per-sample terms"):
+        plot_forces(SimpleNamespace(terms={}))
 
 
 def test_independent_errors_do_not_cancel():
@@ -90,12 +95,15 @@ def test_analyze_compares_forces_of_a_lagrangian_model_through_alpha(tmp_path):
     assert f.error["G"] < 1e-12 and f.error["D_qd"] < 1e-12 and f.error["net"] < 1e-12
     assert f.error["A_u"] is None and f.alignment is None
     assert f.meta["scale_from"] == "alpha"
-    paths = write_report(result, tmp_path, plots=False)
+    paths = write_report(result, tmp_path)
+    assert paths["forces.png"].stat().st_size > 0
     saved = json.loads(paths["analysis.json"].read_text())["forces"]
     assert saved["error"]["A_u"] is None and saved["samples"] == 30
     text = paths["report.md"].read_text()
     assert "## Forces along the data" in text and "`data.npz` (trajectories 0-2, 5)" in text
-    assert "| A u | 0 | — |" in text
+    assert "| A u | 0 | — |" in text and "](forces.png)" in text
+    fig = plot_forces(f)  # G, D q̇ and the net force; no inputs, so no panel of errors
+    assert len(fig.axes) == 3
     # without samples there is no force comparison
     assert analyze(task1, ScaledTask1(), q, transforms=("alpha",)).forces is None
 
