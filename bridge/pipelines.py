@@ -745,12 +745,15 @@ def _stage_analyze(spec, plan: Plan, trained: dict, folder: Path) -> dict:
 
     true = TrueModel(spec)
     q, k = analysis_q(spec, count=plan.analysis_points, seed=0)
+    runs = load_ensemble(trained["run"])
+    # the force terms along the training trajectories the models learned from (every member
+    # trained on the same data and split, so one draw of samples serves them all)
+    info = runs[0].info
+    samples = data_samples(load_dataset(info["dataset"]["path"]), info["split"]["train"],
+                           count=plan.analysis_points * 10)
     seeds = []
-    for i, run in enumerate(load_ensemble(trained["run"])):
+    for i, run in enumerate(runs):
         where = folder if i == 0 else folder / f"seed-{run.seed}"
-        # the force terms along the training trajectories the model learned from
-        data = load_dataset(run.info["dataset"]["path"])
-        samples = data_samples(data, run.info["split"]["train"], count=plan.analysis_points * 10)
         result = analyze(true, run.model, q, samples=samples)
         write_report(result, where, max_table_q=max(k, 3))
         seeds.append({"seed": run.seed, "summary": summary_numbers(result),
