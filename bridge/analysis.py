@@ -51,6 +51,7 @@ class AnalysisResult:
     results: Mapping[str, TransformResult]
     meta: Mapping[str, Any] = field(default_factory=dict)
     forces: ForceComparison | None = None
+    accelerations: ForceComparison | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Every number, JSON-ready (NaN and inf as None)."""
@@ -64,6 +65,9 @@ class AnalysisResult:
                 "learned": side(self.learned),
                 "transforms": {k: r.to_dict() for k, r in self.results.items()},
                 "forces": None if self.forces is None else self.forces.to_dict(),
+                "accelerations": (
+                    None if self.accelerations is None else self.accelerations.to_dict()
+                ),
             }
         )
 
@@ -180,7 +184,9 @@ def analyze(
     ``samples``: data samples ``(q, qd, u)`` or ``(q, qd, u, meta)`` (see
     :func:`bridge.forces.data_samples`); both models' force terms G, D q̇, A u and their sum are
     then compared along them (:func:`bridge.forces.compare_forces`; a Lagrangian model's
-    divided by the fitted α, so ``"alpha"`` must be among the transforms).
+    divided by the fitted α, and only when ``"alpha"`` is among the transforms), and so are the
+    accelerations they give, M⁻¹ times each (``accelerations``; any P(q) leaves them alone, so
+    they need no transform).
     """
     transforms = (transforms,) if isinstance(transforms, str) else tuple(transforms)
     for name in transforms:
@@ -214,9 +220,9 @@ def analyze(
         results[name] = fit_transform(name, true, learned, q, **dict(options.get(name, {})))
         if progress:
             progress(name, 3 + i, total)
-    forces = None
+    forces = accelerations = None
     if samples is not None:
-        forces = _forces(true_model, learned_model, kind, results, samples)
+        forces, accelerations = _forces(true_model, learned_model, kind, results, samples)
     spec = getattr(true_model, "spec", None)
     meta = {
         "N": true.N,
@@ -227,10 +233,12 @@ def analyze(
         "transforms": list(transforms),
         "options": options,
     }
-    return AnalysisResult(q, true, learned, kind, results, meta, forces)
+    return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations)
 
 
-def _forces(true_model, learned_model, kind, results, samples) -> ForceComparison:
+def _forces(true_model, learned_model, kind, results, samples):
+    """The force comparison (None for a Lagrangian model without the alpha transform) and the
+    acceleration comparison along the samples."""
     if not isinstance(samples, tuple | list) or len(samples) not in (3, 4):
         raise UserError("samples: expected (q, qd, u) or (q, qd, u, meta)")
     qs, qd, u = samples[:3]
@@ -238,23 +246,23 @@ def _forces(true_model, learned_model, kind, results, samples) -> ForceCompariso
     qs = np.asarray(qs, dtype=np.float64)
     if qs.ndim != 2 or len(qs) == 0:
         raise UserError(f"samples: q expected shape (N, n) with N > 0, got {qs.shape}")
+    scale = None
     if kind == "hamiltonian":
         scale = 1.0
     elif "alpha" in results and np.isfinite(results["alpha"].alpha):
         scale = 1.0 / results["alpha"].alpha
-        meta["scale_from"] = "alpha"
-    else:
-        raise UserError(
-            "samples: comparing a Lagrangian model's forces needs the 'alpha' transform "
-            "(learned ~= alpha * true)"
-        )
     n = getattr(true_model, "n", None)
     if n is not None:
         check_q(qs, len(qs), int(n))
     true = true_matrices(true_model, qs)
     check_q(qs, true.N, true.n)
     learned = learned_matrices(learned_model, qs)
-    return compare_forces(true, learned, qd, u, scale=scale, meta=meta)
+    forces = None
+    if scale is not None:
+        fmeta = dict(meta, scale_from="alpha") if kind != "hamiltonian" else meta
+        forces = compare_forces(true, learned, qd, u, scale=scale, meta=fmeta)
+    accelerations = compare_forces(true, learned, qd, u, frame="acceleration", meta=meta)
+    return forces, accelerations
 
 
 # --------------------------------------------------------------------------------------------
@@ -312,10 +320,11 @@ def write_report(
         p = out / "P_entries.png"
         plot_transform_entries(result.q, result.results, path=p)
         paths[p.name] = p
-        if result.forces is not None and result.forces.terms:
-            p = out / "forces.png"
-            plot_forces(result.forces, path=p)
-            paths[p.name] = p
+        for name, comp in (("forces.png", result.forces),
+                           ("accelerations.png", result.accelerations)):
+            if comp is not None and comp.terms:
+                plot_forces(comp, path=out / name)
+                paths[name] = out / name
 
     k = min(max_table_q, len(result.q))
     lines = [
@@ -343,10 +352,11 @@ def write_report(
             "",
             to_markdown(_first_q(tables[name], k), precision=precision),
         ]
-    if result.forces is not None:
-        lines += force_lines(result.forces.to_dict())
-        if "forces.png" in paths:
-            lines += ["![force terms, true against learned](forces.png)", ""]
+    for name, comp in (("forces.png", result.forces), ("accelerations.png", result.accelerations)):
+        if comp is not None:
+            lines += force_lines(comp.to_dict())
+            if name in paths:
+                lines += [f"![{comp.frame} terms, true against learned]({name})", ""]
     if plots:
         lines += [
             "## Entries: true vs (transformed) learned, one row per transform",

@@ -30,10 +30,12 @@ def register(subparsers) -> None:
                    help="pointwise, joint, alpha, constant, smooth, direct (default: all but "
                         "direct; direct is added for Hamiltonian models)")
     p.add_argument("--data", metavar="DATA.npz", default=None,
-                   help="compare the force terms G, D q̇, A u along these data (default: the "
-                        "run's own data set, its training trajectories)")
+                   help="compare the force terms G, D q̇, A u and the accelerations M⁻¹ times "
+                        "each along these data (default: the run's own data set, its training "
+                        "trajectories)")
     p.add_argument("--samples", type=int, default=2000,
-                   help="data samples for the force comparison (default 2000; 0: none)")
+                   help="data samples for the force and acceleration comparisons (default "
+                        "2000; 0: none)")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--json", action="store_true", help="print every number as one JSON object")
     p.set_defaults(func=cmd_analyze)
@@ -107,9 +109,11 @@ def cmd_analyze(args) -> int:
 
 
 def _force_samples(run, data_path, count, transforms):
-    """Samples for the force comparison: from ``data_path`` (the run's training trajectories
-    when it is the run's own data set, else all), or by default from the run's data set; None
-    when ``count`` is 0 or, by default, the run's data set is gone (said on stderr)."""
+    """Samples for the force and acceleration comparisons: from ``data_path`` (the run's
+    training trajectories when it is the run's own data set, else all), or by default from the
+    run's data set; None when ``count`` is 0 or, by default, the run's data set is gone (said
+    on stderr). A Lagrangian model's forces need the alpha transform; without it only the
+    accelerations are compared (said on stderr)."""
     from pathlib import Path
 
     from learn.data import load_dataset
@@ -121,16 +125,15 @@ def _force_samples(run, data_path, count, transforms):
     if count == 0:
         return None
     if run.model_config.kind != "hamiltonian" and "alpha" not in transforms:
-        if data_path is not None:
-            raise UserError("--data: a Lagrangian model's forces are compared through the "
-                            "alpha transform; add alpha to --transform")
-        return None
+        print("softpinn: note: a Lagrangian model's forces are compared through the alpha "
+              "transform (not among --transform): comparing the accelerations only",
+              file=sys.stderr)
     recorded = run.info.get("dataset", {})
     if data_path is None:
         data_path = recorded.get("path")
         if not data_path or not Path(data_path).is_file():
-            print(f"softpinn: note: no force comparison: the run's data set {data_path} is not "
-                  "there (give --data)", file=sys.stderr)
+            print("softpinn: note: no force or acceleration comparison: the run's data set "
+                  f"{data_path} is not there (give --data)", file=sys.stderr)
             return None
     data = load_dataset(data_path, n=run.model_config.n, m=run.model_config.m)
     own = data.sha256 == recorded.get("sha256")

@@ -17,7 +17,15 @@ along the data, and the terms are not separately determined by these data.
 
 For a Hamiltonian network (eq. 7) the learned terms are compared directly; for a Lagrangian one
 (eq. 6) learned ≈ α true (Tables V, VI), so the learned terms are divided by the fitted α
-(``scale = 1/α``). numpy only; the matrices come from :mod:`bridge.analysis`.
+(``scale = 1/α``).
+
+The same comparison in the ``"acceleration"`` frame multiplies every term by M(q)⁻¹ first:
+``M⁻¹G``, ``M⁻¹D q̇``, ``M⁻¹A u`` and ``M⁻¹(A u − G − D q̇)``, the accelerations each force
+gives. These need no transform: a Lagrangian network whose matrices are the true ones through
+any invertible P(q) (``M = P M̂``, ``D = P D̂``, ``G = P Ĝ``, ``A = P Â``; Section IV, Tables I
+and VIII) has ``M̂⁻¹X̂ = M⁻¹X`` for each of them, so they compare every model with the truth
+where no scalar α fits, as in Tasks 4 and 5. numpy only; the matrices come from
+:mod:`bridge.analysis`.
 """
 
 from __future__ import annotations
@@ -34,6 +42,13 @@ from .matrices import MatrixStack, check_pair
 #: The force terms in report order; ``net = A u − G − D q̇``.
 TERMS = ("G", "D_qd", "A_u", "net")
 LABELS = {"G": "G", "D_qd": "D q̇", "A_u": "A u", "net": "A u − G − D q̇"}
+#: ``"force"``: the terms as they are; ``"acceleration"``: each multiplied by M(q)⁻¹.
+FRAMES = ("force", "acceleration")
+FRAME_LABELS = {
+    "force": LABELS,
+    "acceleration": {"G": "M⁻¹G", "D_qd": "M⁻¹D q̇", "A_u": "M⁻¹A u",
+                     "net": "M⁻¹(A u − G − D q̇)"},
+}  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,10 +57,12 @@ class ForceComparison:
 
     Attributes:
         samples: the number of (q, q̇, u) samples.
+        frame: ``"force"`` or ``"acceleration"`` (every term multiplied by M(q)⁻¹).
         scale: the learned terms were multiplied by this before comparing (1, or 1/α).
         rms: per term, the root-mean-square norm of the true force over the samples.
         error: per term, ``‖scale F̂ − F‖ / ‖F‖`` over all samples (None where ``F = 0``).
-        cancellation: ``‖e_net‖ / sqrt(Σ_terms ‖e_term‖²)`` (None when every term is exact).
+        cancellation: ``‖e_net‖ / sqrt(Σ_terms ‖e_term‖²)`` (None when every term is exact to
+            round-off, 1e-12 relative).
         alignment: cosine between the true ``G`` and ``A u`` stacked over the samples: near 1
             when the inputs hold the arm near equilibrium (None without inputs).
         message: one line saying what the numbers mean.
@@ -62,11 +79,13 @@ class ForceComparison:
     alignment: float | None
     message: str
     meta: dict[str, Any] = field(default_factory=dict)
+    frame: str = "force"
     terms: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "samples": self.samples,
+            "frame": self.frame,
             "scale": self.scale,
             "rms": dict(self.rms),
             "error": dict(self.error),
@@ -77,9 +96,19 @@ class ForceComparison:
         }
 
 
-def force_terms(stack: MatrixStack, qd: np.ndarray, u: np.ndarray | None) -> dict[str, np.ndarray]:
+def force_terms(
+    stack: MatrixStack, qd: np.ndarray, u: np.ndarray | None, frame: str = "force"
+) -> dict[str, np.ndarray]:
     """``G``, ``D q̇``, ``A u`` and the net force ``A u − G − D q̇`` at each sample, (N, n) each.
-    A matrix the stack lacks (no D, or no inputs) contributes zero."""
+    A matrix the stack lacks (no D, or no inputs) contributes zero. In the ``"acceleration"``
+    frame each is multiplied by the stack's M(q)⁻¹ (the stack needs ``M`` or ``M_inv``)."""
+    if frame not in FRAMES:
+        raise UserError(f"frame: expected one of {list(FRAMES)}, got {frame!r}")
+    if frame == "acceleration":
+        if not stack.has("M"):
+            raise UserError(f"frame: the acceleration frame needs {stack.name}.M or M_inv")
+        Minv = stack.mass_inverse()
+        return {k: np.einsum("kij,kj->ki", Minv, v) for k, v in force_terms(stack, qd, u).items()}
     zero = np.zeros((stack.N, stack.n))
     G = stack.G if stack.G is not None else zero
     Dq = np.einsum("kij,kj->ki", stack.D, qd) if stack.D is not None else zero
@@ -97,12 +126,14 @@ def compare_forces(
     u: Any = None,
     *,
     scale: float = 1.0,
+    frame: str = "force",
     meta: dict[str, Any] | None = None,
 ) -> ForceComparison:
     """Compare the force terms of two stacks evaluated at the same N data configurations, with
     the samples' velocities ``qd`` (N, n) and inputs ``u`` (N, m) (None or m = 0: no inputs).
     ``scale`` multiplies the learned terms (1 for a Hamiltonian network, 1/α for a Lagrangian
-    one)."""
+    one). ``frame="acceleration"`` compares ``M⁻¹`` times each term instead, which any P(q)
+    relating the two models leaves alone (use ``scale=1`` there)."""
     check_pair(true, learned)
     N, n = true.N, true.n
     qd = _samples(qd, "qd", N, n)
@@ -111,7 +142,7 @@ def compare_forces(
         u = _samples(u, "u", N, m)
     if not np.isfinite(scale) or scale == 0:
         raise UserError(f"scale: expected a finite non-zero number, got {scale}")
-    ft, fl = force_terms(true, qd, u), force_terms(learned, qd, u)
+    ft, fl = force_terms(true, qd, u, frame), force_terms(learned, qd, u, frame)
     err, rms, e2 = {}, {}, {}
     for key in TERMS:
         e = scale * fl[key] - ft[key]
@@ -120,14 +151,16 @@ def compare_forces(
         rms[key] = float(np.sqrt(np.mean(np.sum(ft[key] ** 2, axis=1))))
         err[key] = float(np.sqrt(e2[key]) / norm) if norm > 0 else None
     parts = e2["G"] + e2["D_qd"] + e2["A_u"]
-    cancellation = float(np.sqrt(e2["net"] / parts)) if parts > 0 else None
+    # errors at round-off (relative 1e-12 of the terms) say nothing about cancelling
+    size = sum(float(np.sum(ft[k] ** 2)) for k in ("G", "D_qd", "A_u"))
+    cancellation = float(np.sqrt(e2["net"] / parts)) if parts > 1e-24 * size else None
     g, au = ft["G"].ravel(), ft["A_u"].ravel()
     den = float(np.linalg.norm(g) * np.linalg.norm(au))
     alignment = float(g @ au / den) if den > 0 else None
     return ForceComparison(
         samples=N, scale=float(scale), rms=rms, error=err, cancellation=cancellation,
-        alignment=alignment, message=_message(cancellation, alignment),
-        meta=dict(meta or {}), terms={k: (ft[k], scale * fl[k]) for k in TERMS},
+        alignment=alignment, message=_message(cancellation, alignment, frame),
+        meta=dict(meta or {}), frame=frame, terms={k: (ft[k], scale * fl[k]) for k in TERMS},
     )  # fmt: skip
 
 
@@ -143,22 +176,24 @@ def _samples(x: Any, name: str, N: int, cols: int) -> np.ndarray:
     return a
 
 
-def _message(cancellation, alignment) -> str:
+def _message(cancellation, alignment, frame: str = "force") -> str:
+    what = "force" if frame == "force" else "acceleration"
+    G, Au = FRAME_LABELS[frame]["G"], FRAME_LABELS[frame]["A_u"]
     if cancellation is None:
-        return "every force term matches the true one exactly along the data"
+        return f"every {what} term matches the true one exactly along the data"
     if cancellation >= 0.5:
         return (
-            f"the terms' errors do not cancel along the data (cancellation {cancellation:.2f}): "
-            "the data determine each term about as well as their sum"
+            "the terms' errors do not cancel along the data: the data determine each term about "
+            "as well as their sum"
         )
     line = (
-        f"the terms' errors cancel along the data (cancellation {cancellation:.2f}): the net "
-        f"force's error is {cancellation:.2f} of what the terms' errors add up to if unrelated, "
-        "so these data fix the sum better than each term"
+        f"the terms' errors cancel along the data: the net {what}'s error is {cancellation:.2f} "
+        "of what the terms' errors add up to if unrelated, so these data fix the sum better "
+        "than each term"
     )
     if alignment is not None and alignment > 0.9:
         line += (
-            f"; the true G and A u are aligned ({alignment:.2f}): the inputs hold the arm near "
+            f"; the true {G} and {Au} are aligned ({alignment:.2f}): the inputs hold the arm near "
             "equilibrium, so G and A can share an error the loss barely sees"
         )
     return line
@@ -183,32 +218,40 @@ def data_samples(
     return data.q[idx], data.qd[idx], data.u[idx], meta
 
 
-def markdown_lines(
-    d: dict[str, Any] | None, *, heading: str | None = "## Forces along the data"
-) -> list[str]:
+def markdown_lines(d: dict[str, Any] | None, *, heading: str | None = "") -> list[str]:
     """Report lines for a :meth:`ForceComparison.to_dict` (as stored in ``analysis.json``),
-    under ``heading`` (None: no heading)."""
+    under ``heading`` (``""``: "## Forces along the data" or "## Accelerations along the
+    data" by the comparison's frame; None: no heading)."""
     if not d:
         return []
+    frame = d.get("frame", "force")
+    labels = FRAME_LABELS[frame]
+    if heading == "":
+        heading = "## Forces along the data" if frame == "force" else (
+            "## Accelerations along the data")
     meta = d.get("meta", {})
     where = f" of `{Path(meta['data']).name}`" if meta.get("data") else ""
     traj = meta.get("trajectories")
     if traj:
         where += f" (trajectories {_ranges(traj)})"
     scaled = "" if d["scale"] == 1 else f"; learned terms × {d['scale']:.4g} (1/α)"
+    what = "Force terms" if frame == "force" else (
+        "Acceleration terms (M(q)⁻¹ times each force: the same for a learned model whose "
+        "matrices are the true ones through any P(q))")
     lines = [heading, ""] if heading else []
     lines += [
-        f"Force terms along {d['samples']} data samples{where}{scaled}; relative error "
+        f"{what} along {d['samples']} data samples{where}{scaled}; relative error "
         "‖F̂ − F‖/‖F‖ over all of them:",
-        "", "| force | true rms | relative error |", "|---|---|---|",
+        "", f"| {frame} | true rms | relative error |", "|---|---|---|",
     ]  # fmt: skip
     for key in TERMS:
         e = d["error"].get(key)
         cell = "—" if e is None else f"{100 * e:.3g} %"
-        lines.append(f"| {LABELS[key]} | {d['rms'][key]:.3g} | {cell} |")
+        lines.append(f"| {labels[key]} | {d['rms'][key]:.3g} | {cell} |")
     c, a = d.get("cancellation"), d.get("alignment")
     extra = [f"cancellation ‖e_net‖/√Σ‖e_term‖² = {c:.3g}" if c is not None else None,
-             f"alignment of the true G and A u = {a:.3g}" if a is not None else None]
+             f"alignment of the true {labels['G']} and {labels['A_u']} = {a:.3g}"
+             if a is not None else None]
     extra = [x for x in extra if x]
     lines += ["", (("; ".join(extra) + ". ") if extra else "") + d["message"][0].upper()
               + d["message"][1:] + ".", ""]

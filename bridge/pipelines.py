@@ -425,7 +425,7 @@ def reproduce(
                 entry["analyze"] = stages.run(
                     f"analyze/{variant.name}/{kind}",
                     {"train": settings, "points": plan.analysis_points, "every_seed": True,
-                     "force_samples": plan.analysis_points * 10},
+                     "force_samples": plan.analysis_points * 10, "accelerations": True},
                     lambda d, t=tr: _stage_analyze(spec, plan, t, d),
                 )
             vres["models"][kind] = entry

@@ -142,12 +142,15 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
     """True against learned force terms along the data (:class:`bridge.forces.ForceComparison`),
     one panel per term that is not zero, with the identity line; with inputs, a last panel of
     the learned A u's error against G's, per component: points on the identity are errors that
-    cancel in the net force A u − G − D q̇."""
-    from .forces import LABELS, TERMS
+    cancel in the net force A u − G − D q̇. In the acceleration frame the same for M⁻¹ times
+    each term."""
+    from .forces import FRAME_LABELS, TERMS
 
     terms = getattr(forces, "terms", None)
     if not terms:
         raise UserError("forces: no per-sample terms to plot (compare_forces makes them)")
+    frame = getattr(forces, "frame", "force")
+    labels = FRAME_LABELS[frame]
     keys = [k for k in TERMS if np.any(terms[k][0] != 0)]
     pair = forces.error.get("A_u") is not None and forces.error.get("G") is not None
     fig = Figure(figsize=(3.0 * (len(keys) + pair), 3.4))
@@ -156,7 +159,7 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
         x, y = terms[k][0].ravel(), terms[k][1].ravel()
         _identity_scatter(ax, x, y)
         err = forces.error[k]
-        ax.set_title(LABELS[k] + ("" if err is None else f"  ({100 * err:.2g} %)"))
+        ax.set_title(labels[k] + ("" if err is None else f"  ({100 * err:.2g} %)"))
         ax.set_xlabel("true")
         ax.set_ylabel("learned" if forces.scale == 1 else "learned / α")
     if pair:
@@ -165,9 +168,9 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
         ea = (terms["A_u"][1] - terms["A_u"][0]).ravel()
         _identity_scatter(ax, eg, ea)
         ax.set_title(f"errors (cancellation {forces.cancellation:.2g})")
-        ax.set_xlabel("error of G")
-        ax.set_ylabel("error of A u")
-    fig.suptitle(title or f"force terms along {forces.samples} data samples (dashed: identity)")
+        ax.set_xlabel(f"error of {labels['G']}")
+        ax.set_ylabel(f"error of {labels['A_u']}")
+    fig.suptitle(title or f"{frame} terms along {forces.samples} data samples (dashed: identity)")
     fig.tight_layout()
     return _save(fig, path)
 

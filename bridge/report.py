@@ -240,18 +240,23 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
 
 
 def _force_lines(folder: Path, out: Path) -> list[str]:
-    """The first seed's force terms along its training data (:mod:`bridge.forces`)."""
+    """The first seed's force terms along its training data, and the accelerations they give
+    (:mod:`bridge.forces`)."""
     path = folder / "analysis.json"
     if not path.is_file():
         return []
     from .forces import markdown_lines
 
-    forces = json.loads(path.read_text()).get("forces")
-    if not forces:
-        return []
-    lines = [""] + markdown_lines(forces, heading=None)[:-1]
-    if (folder / "forces.png").is_file():
-        lines += ["", f"![force terms, true against learned]({_rel(folder / 'forces.png', out)})"]
+    analysis = json.loads(path.read_text())
+    lines = []
+    for key, png in (("forces", "forces.png"), ("accelerations", "accelerations.png")):
+        comp = analysis.get(key)
+        if not comp:
+            continue
+        lines += [""] + markdown_lines(comp, heading=None)[:-1]
+        if (folder / png).is_file():
+            lines += ["", f"![{comp.get('frame', 'force')} terms, true against learned]"
+                          f"({_rel(folder / png, out)})"]
     return lines
 
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from types import SimpleNamespace
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 import pytest
 from test_analysis import ScaledTask1
@@ -14,10 +16,11 @@ from bridge.errors import UserError
 from bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
 from bridge.matrices import MatrixStack
 from bridge.plots import plot_forces
+from bridge.transforms import fit_transform
 from symbolic.model import TrueModel
 
 
-def _stacks(N=400, n=3, m=2, seed=0):
+def _stacks(N=400, n=3, m=2, seed=0, mass=False):
     """Random matrices at N configurations, and velocities and inputs to go with them."""
     rng = np.random.default_rng(seed)
     B = rng.normal(size=(N, n, n))
@@ -25,7 +28,26 @@ def _stacks(N=400, n=3, m=2, seed=0):
     A = rng.normal(size=(N, n, m))
     G = rng.normal(size=(N, n))
     qd, u = rng.normal(size=(N, n)), rng.normal(size=(N, m))
-    return {"D": D, "A": A, "G": G}, qd, u
+    mats = {"D": D, "A": A, "G": G}
+    if mass:
+        L = rng.normal(size=(N, n, n))
+        mats["M"] = L @ L.transpose(0, 2, 1) + 0.5 * np.eye(n)
+    return mats, qd, u
+
+
+class PTask1(eqx.Module):
+    """Task 1's true matrices (eq. 25) seen through a known invertible P(q) = 1.5 I + 0.4 q b^T:
+    M̂ = P⁻¹M, D̂ = P⁻¹D, Ĝ = P⁻¹G, one of the solutions a Lagrangian network may learn
+    (Section IV). No scalar alpha relates them to the true ones."""
+
+    def matrices(self, q):
+        P = 1.5 * jnp.eye(2) + 0.4 * jnp.outer(q, jnp.array([1.0, -0.5]))
+        Pinv = jnp.linalg.inv(P)
+        K = jnp.array([[2.1, -2.1], [-2.1, 6.7]])
+        M = Pinv @ jnp.diag(jnp.array([1.0, 1.8]))
+        return {"M": M, "M_inv": jnp.linalg.inv(M),
+                "D": Pinv @ jnp.array([[0.3, -0.3], [-0.3, 0.3]]), "G": Pinv @ K @ q,
+                "A": jnp.zeros((2, 0))}  # fmt: skip
 
 
 def test_terms_are_the_right_hand_side_of_eq_1():
@@ -108,6 +130,75 @@ def test_analyze_compares_forces_of_a_lagrangian_model_through_alpha(tmp_path):
     assert analyze(task1, ScaledTask1(), q, transforms=("alpha",)).forces is None
 
 
+def test_acceleration_terms_are_m_inverse_times_the_forces():
+    mats, qd, u = _stacks(N=6, mass=True)
+    stack = MatrixStack(**mats)
+    forces, accel = force_terms(stack, qd, u), force_terms(stack, qd, u, "acceleration")
+    for key in ("G", "D_qd", "A_u", "net"):
+        np.testing.assert_allclose(mats["M"][2] @ accel[key][2], forces[key][2], rtol=1e-12)
+    # M_inv alone does as well
+    only_inv = MatrixStack(M_inv=np.linalg.inv(mats["M"]), G=mats["G"])
+    np.testing.assert_allclose(force_terms(only_inv, qd, None, "acceleration")["G"],
+                               accel["G"], rtol=1e-12)
+    with pytest.raises(UserError, match="acceleration frame needs matrices.M or M_inv"):
+        force_terms(MatrixStack(G=mats["G"]), qd, u, "acceleration")
+    with pytest.raises(UserError, match=r"frame: expected one of \['force', 'acceleration'\]"):
+        force_terms(stack, qd, u, "torque")
+
+
+def test_accelerations_are_the_same_through_any_p_of_q():
+    """A learned model P(q)⁻¹ [M D A G] has other forces but the same accelerations: the
+    acceleration frame finds it exact where the force frame (and any scalar) cannot."""
+    mats, qd, u = _stacks(mass=True)
+    rng = np.random.default_rng(5)
+    P = 2.0 * np.eye(3) + 0.3 * rng.normal(size=(400, 3, 3))
+    Pinv = np.linalg.inv(P)
+    learned = {k: Pinv @ v for k, v in mats.items() if k != "G"}
+    learned["G"] = np.einsum("kij,kj->ki", Pinv, mats["G"])
+    true, hat = MatrixStack(**mats), MatrixStack(**learned)
+    r = compare_forces(true, hat, qd, u, frame="acceleration")
+    assert r.frame == "acceleration" and max(r.error.values()) < 1e-12
+    assert r.cancellation is None and "every acceleration term" in r.message
+    assert compare_forces(true, hat, qd, u).error["G"] > 0.3
+    # a 5 % error of A alone shows in M⁻¹A u and in the net acceleration, not elsewhere
+    learned["A"] = 1.05 * learned["A"]
+    r = compare_forces(true, MatrixStack(**learned), qd, u, frame="acceleration")
+    assert r.error["A_u"] == pytest.approx(0.05, rel=1e-10)
+    assert r.error["G"] < 1e-12 and r.error["D_qd"] < 1e-12 and r.error["net"] > 0.01
+    assert r.to_dict()["frame"] == "acceleration"
+    lines = "\n".join(markdown_lines(r.to_dict()))
+    assert lines.startswith("## Accelerations along the data")
+    assert "| M⁻¹A u |" in lines and "| M⁻¹(A u − G − D q̇) |" in lines
+
+
+def test_analyze_compares_accelerations_of_a_model_related_by_p_of_q(tmp_path):
+    """PTask1 is the true Task 1 model through a q-dependent P: no alpha explains it, so its
+    forces scaled by 1/alpha are off, but its accelerations are the true ones."""
+    task1 = TrueModel("task1")
+    q = sample_q([-1, -1], [1, 1], 12, seed=3)
+    rng = np.random.default_rng(6)
+    qs, qd = rng.uniform(-1, 1, (40, 2)), rng.normal(size=(40, 2))
+    result = analyze(task1, PTask1(), q, transforms=("alpha", "pointwise"),
+                     samples=(qs, qd, np.zeros((40, 0))))
+    assert result.results["alpha"].residual_total > 0.05  # no scalar fits
+    assert result.forces.error["G"] > 0.05
+    acc = result.accelerations
+    assert acc.scale == 1 and acc.error["G"] < 1e-12 and acc.error["D_qd"] < 1e-12
+    assert acc.error["net"] < 1e-12 and acc.error["A_u"] is None
+    paths = write_report(result, tmp_path)
+    assert paths["accelerations.png"].stat().st_size > 0
+    text = paths["report.md"].read_text()
+    assert "## Forces along the data" in text and "## Accelerations along the data" in text
+    assert "](accelerations.png)" in text
+    saved = json.loads(paths["analysis.json"].read_text())["accelerations"]
+    assert saved["frame"] == "acceleration" and saved["error"]["A_u"] is None
+    # without alpha, the forces are not compared but the accelerations are
+    bare = analyze(task1, PTask1(), q, transforms=("pointwise",),
+                   samples=(qs, qd, np.zeros((40, 0))))
+    assert bare.forces is None and bare.accelerations.error["net"] < 1e-12
+    assert fit_transform("pointwise", result.true, result.learned).residual_total < 1e-12
+
+
 @pytest.mark.parametrize(
     ("change", "match"),
     [
@@ -133,9 +224,6 @@ def test_analyze_rejects_bad_samples():
     q = sample_q([-1, -1], [1, 1], 4, seed=0)
     with pytest.raises(UserError, match=r"samples: expected \(q, qd, u\)"):
         analyze(task1, ScaledTask1(), q, transforms=("alpha",), samples=(q,))
-    with pytest.raises(UserError, match="needs the 'alpha' transform"):
-        analyze(task1, ScaledTask1(), q, transforms=("pointwise",),
-                samples=(q, q, np.zeros((4, 0))))
     with pytest.raises(UserError, match="q: expected length n = 2"):
         analyze(task1, ScaledTask1(), q, transforms=("alpha",),
                 samples=(np.zeros((4, 3)), q, np.zeros((4, 0))))

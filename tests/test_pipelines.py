@@ -40,6 +40,7 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     # residuals at each of the paper's configurations, then over the sampled ones
     assert "Relative residual per configuration" in text and "| sampled (" in text
     assert "Force terms along" in text and "| A u − G − D q̇ |" in text
+    assert "Acceleration terms" in text and "| M⁻¹(A u − G − D q̇) |" in text
     variants = result.results["variants"]
     assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
     for vname, vres in variants.items():
@@ -75,6 +76,9 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
                 trained = json.loads(
                     (out / "train" / vname / kind / "run" / "config.json").read_text())
                 assert forces["meta"]["trajectories"] == trained["split"]["train"]
+                accel = an["accelerations"]  # M^-1 times each, at the same samples
+                assert accel["samples"] == forces["samples"]
+                assert math.isfinite(accel["error"]["net"])
     assert list((out / "tables").glob("table_iii_*.csv"))
     figures = {p.name for p in (out / "figures").glob("*.png")}
     assert any(f.startswith("loss_") for f in figures)
@@ -250,21 +254,31 @@ def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
     assert set(payload["transforms"]) == {"alpha", "pointwise"}
     assert (out / "report.md").is_file()
     # the forces along the run's own training trajectories, learned ones divided by alpha
-    forces = payload["forces"]
+    forces, accel = payload["forces"], payload["accelerations"]
     assert forces["samples"] > 0 and forces["meta"]["scale_from"] == "alpha"
-    assert "## Forces along the data" in (out / "report.md").read_text()
+    # and the accelerations, M^-1 times each term, with no transform
+    assert accel["frame"] == "acceleration" and accel["scale"] == 1
+    assert accel["samples"] == forces["samples"] and math.isfinite(accel["error"]["net"])
+    text = (out / "report.md").read_text()
+    assert "## Forces along the data" in text and "## Accelerations along the data" in text
+    assert (out / "accelerations.png").is_file()
     assert main(["analyze", str(run), "task1", "--samples", "0", "--transform", "alpha",
                  "--out", str(tmp_path / "f"), "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["forces"] is None
+    payload = json.loads(capsys.readouterr().out)
+    assert payload["forces"] is None and payload["accelerations"] is None
     assert main(["analyze", str(run), "task1", "--samples", "-1", "--out",
                  str(tmp_path / "g")]) == 2
     assert "--samples" in _err(capsys)
     assert main(["analyze", str(run), "task1", "--data", str(tmp_path / "none.npz"), "--out",
                  str(tmp_path / "h")]) == 2
     assert "none.npz" in _err(capsys)
-    assert main(["analyze", str(run), "task1", "--data", str(tmp_path / "none.npz"),
-                 "--transform", "pointwise", "--out", str(tmp_path / "i")]) == 2
-    assert "add alpha to --transform" in _err(capsys)
+    # without alpha a Lagrangian model's forces are not compared; its accelerations are
+    assert main(["analyze", str(run), "task1", "--transform", "pointwise", "--samples", "50",
+                 "--out", str(tmp_path / "i"), "--json"]) == 0
+    captured = capsys.readouterr()
+    payload = json.loads(captured.out)
+    assert payload["forces"] is None and payload["accelerations"]["samples"] == 50
+    assert "comparing the accelerations only" in captured.err
     # a run of another model size
     assert main(["analyze", str(run), "task4", "--out", str(tmp_path / "b")]) == 2
     assert "n=2" in _err(capsys)
