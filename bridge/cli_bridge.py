@@ -167,12 +167,18 @@ class _EpochBar:
     """One tqdm bar per trained model, driven by the training callback."""
 
     def __init__(self):
+        from .cli_learn import LbfgsBar
+
         self.bar = None
         self.key = None
+        self.lbfgs = LbfgsBar()
 
     def __call__(self, info: dict):
         from tqdm.auto import tqdm
 
+        if info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
+            self.lbfgs(info)
+            return
         key = (info["label"], info["epochs"])
         if self.bar is None or key != self.key:
             self.close()
@@ -191,6 +197,7 @@ class _EpochBar:
         self.bar.set_postfix(post, refresh=False)
 
     def close(self):
+        self.lbfgs.close()
         if self.bar is not None:
             self.bar.close()
             self.bar = None

@@ -208,15 +208,49 @@ def _model_config(args, n: int, m: int, data=None):
     )
 
 
+class LbfgsBar:
+    """A second tqdm bar (stderr) for the L-BFGS finish of each trained group, which the epoch
+    bars do not count: it shows the iterations done of ``lbfgs_steps``."""
+
+    def __init__(self, disable: bool = False):
+        self.disable, self.bar, self.key = disable, None, None
+
+    def __call__(self, info: dict) -> None:
+        from tqdm.auto import tqdm
+
+        key = info["label"]
+        if self.bar is None or key != self.key:
+            self.close()
+            self.bar = tqdm(total=info["lbfgs_steps"], file=sys.stderr, unit="it",
+                            desc="L-BFGS", dynamic_ncols=True, leave=False,
+                            disable=self.disable)
+            self.key = key
+        self.bar.update(max(0, int(info["lbfgs_done"]) - self.bar.n))
+        post = {"train": f"{min(info['train_loss']):.3e}"}
+        if info["test_loss"] is not None:
+            post["test"] = f"{min(info['test_loss']):.3e}"
+        self.bar.set_postfix(post, refresh=False)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
 class _Bar:
-    """tqdm progress bar (stderr) driven by the training callback."""
+    """tqdm progress bar (stderr) driven by the training callback; the L-BFGS finish gets a
+    bar of its own (:class:`LbfgsBar`)."""
 
     def __init__(self, total: int, disable: bool):
         self.total, self.disable = total, disable
         self.bar = None  # drawn at the first epoch, so that an early error prints alone
         self.last = {}
+        self.lbfgs = LbfgsBar(disable)
 
     def __call__(self, info: dict):
+        if info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
+            self.lbfgs(info)
+            return
         if self.bar is None:
             from tqdm.auto import tqdm
 
@@ -236,6 +270,7 @@ class _Bar:
         self.bar.set_postfix(post, refresh=False)
 
     def close(self):
+        self.lbfgs.close()
         if self.bar is not None:
             self.bar.close()
 

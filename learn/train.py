@@ -779,7 +779,7 @@ class _Group:
             bad_now = self._record(epoch, tr, te, "lbfgs", True, prev_p, prev_p)
             active = active & ~bad_now
             if progress is not None:
-                progress(self._progress_info(label, epoch, tr, te, "lbfgs"))
+                progress(self._progress_info(label, epoch, tr, te, "lbfgs", lbfgs_done=done))
         self.active = np.zeros(self.K, dtype=bool)
         self.lbfgs_done = cfg.lbfgs_steps
         self.save()
@@ -796,13 +796,15 @@ class _Group:
             "try a smaller --lr or --float64"
         )
 
-    def _progress_info(self, label, epoch, tr, te, phase):
+    def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None):
         return {
             "label": label,
             "seeds": self.seeds,
             "epoch": int(epoch),
             "epochs": self.prog.config.epochs,
             "phase": phase,
+            "lbfgs_steps": self.prog.config.lbfgs_steps,
+            "lbfgs_done": lbfgs_done,
             "train_loss": [float(x) for x in tr],
             "test_loss": None if te is None else [float(x) for x in te],
             "best_test_loss": [float(x) for x in self.best_loss],

@@ -141,3 +141,26 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
         main(["train", str(data), "--model", "nonsense", "--out", str(tmp_path / "x")])
     assert exc.value.code == 2
     assert "invalid choice" in _error_line(capsys)
+
+
+def test_progress_bars_count_epochs_then_lbfgs_iterations(capsys):
+    """The epoch bar counts AdamW epochs; the L-BFGS finish gets a bar of its own that counts
+    its iterations (the epoch bar used to stand still through it)."""
+    from bridge.cli_bridge import _EpochBar
+    from bridge.cli_learn import _Bar
+
+    def info(phase, epoch, done=None):
+        return {"label": "0", "epoch": epoch, "epochs": 4, "phase": phase, "lbfgs_steps": 30,
+                "lbfgs_done": done, "train_loss": [1e-3], "test_loss": [2e-3]}
+
+    for bar in (_Bar(4, disable=False), _EpochBar()):
+        for e in range(1, 5):
+            bar(info("adamw", e))
+        for done in (10, 20, 30):
+            bar(info("lbfgs", 4 + done // 10, done))
+        assert bar.lbfgs.bar.n == 30 and bar.lbfgs.bar.total == 30
+        assert bar.bar.n == 4
+        bar.close()
+        assert bar.lbfgs.bar is None
+    err = capsys.readouterr().err
+    assert "L-BFGS:" in err and "/30 " in err

@@ -232,7 +232,13 @@ def test_early_stopping_keeps_best(msd, tmp_path):
 
 def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
     cfg = blackbox_train_config(lbfgs_steps=20)
-    res = train(msd, cfg, tmp_path / "lb")
+    infos = []
+    res = train(msd, cfg, tmp_path / "lb", progress=infos.append)
+    # the progress callback counts the L-BFGS iterations, for their own bar
+    lb_infos = [i for i in infos if i["phase"] == "lbfgs"]
+    assert [i["lbfgs_done"] for i in lb_infos] == [10, 20]
+    assert all(i["lbfgs_steps"] == 20 for i in infos)
+    assert all(i["lbfgs_done"] is None for i in infos if i["phase"] == "adamw")
     hist = res.members[0].history
     adam = [r for r in hist if r["phase"] == "adamw"]
     lb = [r for r in hist if r["phase"] == "lbfgs"]
