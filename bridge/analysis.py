@@ -261,8 +261,27 @@ def _forces(true_model, learned_model, kind, results, samples):
     if scale is not None:
         fmeta = dict(meta, scale_from="alpha") if kind != "hamiltonian" else meta
         forces = compare_forces(true, learned, qd, u, scale=scale, meta=fmeta)
-    accelerations = compare_forces(true, learned, qd, u, frame="acceleration", meta=meta)
+    accelerations = compare_forces(true, learned, qd, u, frame="acceleration", meta=meta,
+                                   qdd=_qdd_pair(true_model, learned_model, qs, qd, u))
     return forces, accelerations
+
+
+def _qdd_pair(true_model, learned_model, q, qd, u):
+    """The true and the learned q̈ at the samples, or None when either model cannot give it
+    (matrices given as arrays, stand-ins without ``qdd``)."""
+    if isinstance(learned_model, MatrixStack | Mapping) or not hasattr(learned_model, "qdd"):
+        return None
+    if not callable(getattr(true_model, "qdd", None)):
+        return None
+    import equinox as eqx
+    import jax
+    import jax.numpy as jnp
+
+    qd, u = np.asarray(qd, dtype=np.float64), np.asarray(u, dtype=np.float64)
+    true = np.asarray(true_model.qdd(q, qd, u if u.shape[1] else None), dtype=np.float64)
+    learned = eqx.filter_jit(lambda model, *a: jax.vmap(model.qdd)(*a))(
+        learned_model, jnp.asarray(q), jnp.asarray(qd), jnp.asarray(u))
+    return true.reshape(q.shape), np.asarray(learned, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------

@@ -47,7 +47,7 @@ FRAMES = ("force", "acceleration")
 FRAME_LABELS = {
     "force": LABELS,
     "acceleration": {"G": "M⁻¹G", "D_qd": "M⁻¹D q̇", "A_u": "M⁻¹A u",
-                     "net": "M⁻¹(A u − G − D q̇)"},
+                     "net": "M⁻¹(A u − G − D q̇)", "qdd": "q̈ (C q̇ too)"},
 }  # fmt: skip
 
 
@@ -68,7 +68,8 @@ class ForceComparison:
         message: one line saying what the numbers mean.
         meta: where the samples came from (data file, trajectories, seed).
         terms: per term, the true and the scaled learned force at each sample, (N, n) each
-            (for plots; not in :meth:`to_dict`).
+            (for plots; not in :meth:`to_dict`). In the acceleration frame, ``"qdd"`` (the
+            whole q̈) when the models gave it; it is not counted in ``cancellation``.
     """
 
     samples: int
@@ -127,13 +128,16 @@ def compare_forces(
     *,
     scale: float = 1.0,
     frame: str = "force",
+    qdd: tuple[Any, Any] | None = None,
     meta: dict[str, Any] | None = None,
 ) -> ForceComparison:
     """Compare the force terms of two stacks evaluated at the same N data configurations, with
     the samples' velocities ``qd`` (N, n) and inputs ``u`` (N, m) (None or m = 0: no inputs).
     ``scale`` multiplies the learned terms (1 for a Hamiltonian network, 1/α for a Lagrangian
     one). ``frame="acceleration"`` compares ``M⁻¹`` times each term instead, which any P(q)
-    relating the two models leaves alone (use ``scale=1`` there)."""
+    relating the two models leaves alone (use ``scale=1`` there); ``qdd``, the true and the
+    learned q̈ (N, n) each at the samples, adds the whole acceleration, Coriolis and
+    centrifugal terms included, as the term ``"qdd"`` (acceleration frame only)."""
     check_pair(true, learned)
     N, n = true.N, true.n
     qd = _samples(qd, "qd", N, n)
@@ -150,6 +154,16 @@ def compare_forces(
         e2[key] = float(np.sum(e * e))
         rms[key] = float(np.sqrt(np.mean(np.sum(ft[key] ** 2, axis=1))))
         err[key] = float(np.sqrt(e2[key]) / norm) if norm > 0 else None
+    terms = {k: (ft[k], scale * fl[k]) for k in TERMS}
+    if qdd is not None:
+        if frame != "acceleration":
+            raise UserError("qdd: the whole acceleration is compared in the acceleration frame")
+        tq, lq = (_samples(a, f"qdd[{i}]", N, n) for i, a in enumerate(qdd))
+        e = scale * lq - tq
+        norm = float(np.linalg.norm(tq))
+        err["qdd"] = float(np.linalg.norm(e) / norm) if norm > 0 else None
+        rms["qdd"] = float(np.sqrt(np.mean(np.sum(tq**2, axis=1))))
+        terms["qdd"] = (tq, scale * lq)
     parts = e2["G"] + e2["D_qd"] + e2["A_u"]
     # errors at round-off (relative 1e-12 of the terms) say nothing about cancelling
     size = sum(float(np.sum(ft[k] ** 2)) for k in ("G", "D_qd", "A_u"))
@@ -160,7 +174,7 @@ def compare_forces(
     return ForceComparison(
         samples=N, scale=float(scale), rms=rms, error=err, cancellation=cancellation,
         alignment=alignment, message=_message(cancellation, alignment, frame),
-        meta=dict(meta or {}), frame=frame, terms={k: (ft[k], scale * fl[k]) for k in TERMS},
+        meta=dict(meta or {}), frame=frame, terms=terms,
     )  # fmt: skip
 
 
@@ -244,7 +258,7 @@ def markdown_lines(d: dict[str, Any] | None, *, heading: str | None = "") -> lis
         "‖F̂ − F‖/‖F‖ over all of them:",
         "", f"| {frame} | true rms | relative error |", "|---|---|---|",
     ]  # fmt: skip
-    for key in TERMS:
+    for key in TERMS + (("qdd",) if "qdd" in d["error"] else ()):
         e = d["error"].get(key)
         cell = "—" if e is None else f"{100 * e:.3g} %"
         lines.append(f"| {labels[key]} | {d['rms'][key]:.3g} | {cell} |")

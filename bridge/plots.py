@@ -151,7 +151,7 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
         raise UserError("forces: no per-sample terms to plot (compare_forces makes them)")
     frame = getattr(forces, "frame", "force")
     labels = FRAME_LABELS[frame]
-    keys = [k for k in TERMS if np.any(terms[k][0] != 0)]
+    keys = [k for k in (*TERMS, "qdd") if k in terms and np.any(terms[k][0] != 0)]
     pair = forces.error.get("A_u") is not None and forces.error.get("G") is not None
     fig = Figure(figsize=(3.0 * (len(keys) + pair), 3.4))
     axes = fig.subplots(1, len(keys) + pair, squeeze=False)[0]

@@ -231,7 +231,10 @@ class DynamicsModel(eqx.Module):
         raise UserError(f"a {self.config.kind} model has no physical matrices M, D, G, A")
 
     def qdd(self, q, qd, u):
-        raise UserError(f"qdd (eq. 6) is defined for Lagrangian models, not {self.config.kind}")
+        raise UserError(
+            f"qdd is defined for Lagrangian (eq. 6) and Hamiltonian (eq. 7) models, not "
+            f"{self.config.kind}"
+        )
 
 
 class _PhysicsModel(DynamicsModel):
@@ -350,6 +353,21 @@ class HamiltonianNet(_PhysicsModel):
         qdot = mv(Lc, mtv(Lc, p))
         pdot = -dH_dq - _apply(self.damping, q, qdot) + _apply(self.input_map, q, u)
         return jnp.concatenate([qdot, pdot])
+
+    def qdd(self, q, qd, u):
+        """q̈ at a velocity state, for comparing with Lagrangian models and the truth: the
+        momentum p = M(q) q̇ (two triangular solves with the factor of M⁻¹), ṗ from eq. 7, and
+        q̈ = d/dt (M⁻¹(q) p) = ∂(M⁻¹p)/∂q · q̇ + M⁻¹ ṗ by one Jacobian-vector product."""
+        (q, qd, u) = self._cast(q, qd, u)
+        n = self.config.n
+        p = cho_solve(self.mass.factor(q), qd)
+        pdot = self.vector_field(jnp.concatenate([q, p]), u)[n:]
+
+        def velocity(qq, pp):
+            Lc = self.mass.factor(qq)
+            return mv(Lc, mtv(Lc, pp))
+
+        return jax.jvp(velocity, (q, p), (qd, pdot))[1]
 
     def matrices(self, q) -> dict:
         """Learned {"M_inv", "M", "D", "G", "A"} at one q (M by two triangular solves)."""

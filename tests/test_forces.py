@@ -9,6 +9,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from known_fields import Field, MassField
 from test_analysis import ScaledTask1
 
 from bridge.analysis import analyze, sample_q, write_report
@@ -17,6 +18,7 @@ from bridge.forces import compare_forces, data_samples, force_terms, markdown_li
 from bridge.matrices import MatrixStack
 from bridge.plots import plot_forces
 from bridge.transforms import fit_transform
+from learn.models import HamiltonianNet, ModelConfig
 from symbolic.model import TrueModel
 
 
@@ -197,6 +199,43 @@ def test_analyze_compares_accelerations_of_a_model_related_by_p_of_q(tmp_path):
                    samples=(qs, qd, np.zeros((40, 0))))
     assert bare.forces is None and bare.accelerations.error["net"] < 1e-12
     assert fit_transform("pointwise", result.true, result.learned).residual_total < 1e-12
+
+
+def test_analyze_compares_the_whole_acceleration_of_a_network():
+    """A Hamiltonian network built from Task 1's true fields (eq. 25): every force, every
+    acceleration term and the whole q̈ (its qdd through the momentum) match the truth; the same
+    network with a 10 % stiffer potential has 10 % off G, and q̈ off by what that makes."""
+    task1 = TrueModel("task1")
+    K = jnp.array([[2.1, -2.1], [-2.1, 6.7]])
+
+    def net(stiff=1.0):
+        return HamiltonianNet(
+            config=ModelConfig(kind="hamiltonian", n=2, m=0),
+            mass=MassField(lambda q: jnp.diag(1.0 / jnp.array([1.0, 1.8])) + 0.0 * q[0]),
+            potential=Field(lambda q: 0.5 * stiff * q @ K @ q),
+            damping=Field(lambda q: jnp.array([[0.3, -0.3], [-0.3, 0.3]]) + 0.0 * q[0]),
+            input_map=Field(lambda q: jnp.zeros((2, 0))),
+        )
+
+    rng = np.random.default_rng(8)
+    qs, qd = rng.uniform(-1, 1, (25, 2)), rng.normal(size=(25, 2))
+    q = sample_q([-1, -1], [1, 1], 4, seed=0)
+    samples = (qs, qd, np.zeros((25, 0)))
+    acc = analyze(task1, net(), q, transforms=("alpha",), samples=samples).accelerations
+    assert acc.error["qdd"] < 1e-12 and acc.error["net"] < 1e-12
+    np.testing.assert_allclose(acc.terms["qdd"][0], task1.qdd(qs, qd), rtol=1e-12)
+    stiff = analyze(task1, net(1.1), q, transforms=("alpha",), samples=samples)
+    a = stiff.accelerations
+    assert a.error["G"] == pytest.approx(0.1, rel=1e-10) and a.error["D_qd"] < 1e-12
+    e = 0.1 * a.terms["G"][0]  # q̈ = M⁻¹(−G − D q̇): off by −0.1 M⁻¹G
+    assert a.error["qdd"] == pytest.approx(
+        np.linalg.norm(e) / np.linalg.norm(a.terms["qdd"][0]), rel=1e-10)
+    assert "qdd" not in stiff.forces.error  # the force frame has no q̈
+    lines = "\n".join(markdown_lines(a.to_dict()))
+    assert "| q̈ (C q̇ too) |" in lines
+    with pytest.raises(UserError, match="qdd: the whole acceleration is compared in the"):
+        mats, qd3, u3 = _stacks(N=5, mass=True)
+        compare_forces(MatrixStack(**mats), MatrixStack(**mats), qd3, u3, qdd=(qd3, qd3))
 
 
 @pytest.mark.parametrize(

@@ -159,6 +159,39 @@ def test_hamiltonian_and_lagrangian_agree_on_the_same_system():
     np.testing.assert_allclose(xh[2:], Mdot @ qd + dp_mass(q) @ xl[2:], atol=1e-12)
 
 
+def test_hamiltonian_qdd_is_the_analytic_forward_dynamics(getkey):
+    """HamiltonianNet.qdd at a velocity state: the hand-derived double pendulum's q̈ (Coriolis,
+    damping and input included); for a random network, the derivative of its own velocity
+    M⁻¹(q) p along its flow (central differences of RK4 steps)."""
+    ham = HamiltonianNet(config=ModelConfig(kind="hamiltonian", n=2, m=1), **dp_fields(dp_mass_inv))
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        q, qd, u = rng.normal(size=2), rng.normal(size=2), rng.normal(size=1)
+        np.testing.assert_allclose(ham.qdd(q, qd, u), dp_qdd_numpy(q, qd, u), rtol=1e-11,
+                                   atol=1e-11)
+    net = make_model(ModelConfig(kind="hamiltonian", n=3, m=2, mass=(16, 2), potential=(16, 2)),
+                     key=getkey())
+    q, qd, u = jnp.array([0.3, -0.2, 0.5]), jnp.array([0.4, 0.1, -0.3]), jnp.array([0.2, -0.1])
+    p = jnp.linalg.solve(net.matrices(q)["M_inv"], qd)
+    x0, h = jnp.concatenate([q, p]), 1e-3
+
+    def rk4(x, dt):
+        f = lambda y: net.vector_field(y, u)
+        k1 = f(x)
+        k2 = f(x + dt / 2 * k1)
+        k3 = f(x + dt / 2 * k2)
+        k4 = f(x + dt * k3)
+        return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+    v = lambda x: net.vector_field(x, u)[:3]
+    fd = (v(rk4(x0, h)) - v(rk4(x0, -h))) / (2 * h)
+    np.testing.assert_allclose(v(x0), qd, atol=1e-12)
+    np.testing.assert_allclose(net.qdd(q, qd, u), fd, rtol=1e-5, atol=1e-8)
+    bb = make_model(ModelConfig(kind="blackbox", n=2, m=1), key=getkey())
+    with pytest.raises(UserError, match="defined for Lagrangian .* and Hamiltonian"):
+        bb.qdd(q[:2], qd[:2], u[:1])
+
+
 @pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian"])
 def test_power_balance_of_random_networks(getkey, kind):
     """dE/dt = q̇ᵀ (A u - D q̇) exactly: conservative when undamped and unforced."""
@@ -201,9 +234,8 @@ def test_every_kind_builds_and_runs(getkey, kind, m):
     for name in ("M", "M_inv", "D"):
         assert mats[name].shape == (n, n)
     assert np.all(np.linalg.eigvalsh(np.asarray(mats["M"])) > 0)
-    if kind == "hamiltonian":
-        with pytest.raises(UserError, match="Lagrangian"):
-            model.qdd(x[0, :n], x[0, n:], u[0])
+    # every physics model gives q̈ at a velocity state (a Hamiltonian one through p = M q̇)
+    assert model.qdd(x[0, :n], x[0, n:], u[0]).shape == (n,)
 
 
 def test_float32_models_have_float32_parameters_and_outputs(getkey):

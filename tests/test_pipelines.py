@@ -217,8 +217,8 @@ def test_plans_follow_the_paper():
             if "loss_weight" in m} == {("task3", "hamiltonian"): 0.1}
     # the L-BFGS finishes of the full plans; quick plans and --lbfgs-steps 0 have none
     assert {(t, k): m["lbfgs"] for t in TASKS for k, m in full[t].models.items()
-            if m["lbfgs"]} == {("task3", "hamiltonian"): 200, ("task4", "hamiltonian"): 1000,
-                               ("task4", "lagrangian"): 2000}
+            if m["lbfgs"]} == {("task2", "lagrangian"): 1000, ("task3", "hamiltonian"): 200,
+                               ("task4", "hamiltonian"): 1000, ("task4", "lagrangian"): 2000}
     assert make_plan(load_spec("task3"), ReproduceConfig("task3", quick=True)).models[
         "hamiltonian"]["lbfgs"] == 0
     assert make_plan(load_spec("task3"), ReproduceConfig("task3", lbfgs_steps=0)).models[
