@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import platform
 import time
 from collections.abc import Callable, Mapping
@@ -323,36 +324,68 @@ def _jsonable(x):
     raise TypeError(f"not JSON serialisable: {type(x)}")
 
 
+#: How stage records name paths inside the output folder, so that the folder can be moved,
+#: copied or reached from another working directory and its finished stages still found.
+OUT_MARK = "$OUT"
+
+
 class _Stages:
-    """Runs named stages once: a stage whose ``done.json`` holds the same settings is skipped."""
+    """Runs named stages once: a stage whose ``done.json`` holds the same settings is skipped.
+
+    Paths inside the output folder are stored as ``$OUT/<relative path>`` in the settings and
+    results of ``done.json`` and given back rooted at the current output folder."""
 
     def __init__(self, out: Path, log: Callable[[str], None]):
         self.out = out
         self.log = log
         self.seconds: dict[str, float] = {}  # per stage, as measured when it ran
         self.ran: set[str] = set()  # the stages this call ran (not reused)
+        self._root = os.path.abspath(out)
+
+    def portable(self, x: Any) -> Any:
+        """``x`` (JSON-like) with every path string inside the output folder as ``$OUT/...``."""
+        if isinstance(x, dict):
+            return {k: self.portable(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [self.portable(v) for v in x]
+        if isinstance(x, str) and os.sep in x and not x.startswith(OUT_MARK):
+            a = os.path.abspath(x)
+            if a == self._root or a.startswith(self._root + os.sep):
+                return OUT_MARK + a[len(self._root):].replace(os.sep, "/")
+        return x
+
+    def rooted(self, x: Any) -> Any:
+        """The inverse of :meth:`portable`: ``$OUT/...`` strings as paths in this output folder."""
+        if isinstance(x, dict):
+            return {k: self.rooted(v) for k, v in x.items()}
+        if isinstance(x, list):
+            return [self.rooted(v) for v in x]
+        if isinstance(x, str) and (x == OUT_MARK or x.startswith(OUT_MARK + "/")):
+            return str(self.out.joinpath(*x[len(OUT_MARK) + 1:].split("/")))
+        return x
 
     def run(self, name: str, settings: Mapping[str, Any], fn: Callable[[Path], Any]) -> Any:
         folder = self.out / name
         done = folder / "done.json"
-        settings = json.loads(json.dumps(settings, default=_jsonable))
+        settings = self.portable(json.loads(json.dumps(settings, default=_jsonable)))
         if done.is_file():
             stored = json.loads(done.read_text())
-            if stored.get("settings") == settings:
+            # records written before paths were stored as $OUT/... are read the same way
+            if self.portable(stored.get("settings")) == settings:
                 self.log(f"[{name}] done before, skipped")
                 self.seconds[name] = float(stored.get("seconds", 0.0))
-                return stored["result"]
+                return self.rooted(self.portable(stored["result"]))
         folder.mkdir(parents=True, exist_ok=True)
         self.log(f"[{name}] ...")
         t0 = time.perf_counter()
         result = fn(folder)
         seconds = time.perf_counter() - t0
-        result = json.loads(json.dumps(result, default=_jsonable))
+        result = self.portable(json.loads(json.dumps(result, default=_jsonable)))
         _write_json(done, {"settings": settings, "result": result, "seconds": seconds})
         self.seconds[name] = seconds
         self.ran.add(name)
         self.log(f"[{name}] {seconds:.1f} s")
-        return result
+        return self.rooted(result)
 
 
 @dataclass
@@ -432,7 +465,7 @@ def reproduce(
                     f"analyze/{variant.name}/{kind}",
                     {"train": settings, "points": plan.analysis_points, "every_seed": True,
                      "force_samples": plan.analysis_points * 10, "accelerations": 2},
-                    lambda d, t=tr: _stage_analyze(spec, plan, t, d),
+                    lambda d, t=tr, f=files: _stage_analyze(spec, plan, t, f, d),
                 )
             vres["models"][kind] = entry
             log(f"{key}: test {pr['test_error']['mean']:.3e}, rollout "
@@ -739,7 +772,7 @@ def _truncated_error(rollout: dict, horizon: float) -> float:
 # --------------------------------------------------------------------------------- analysis
 
 
-def _stage_analyze(spec, plan: Plan, trained: dict, folder: Path) -> dict:
+def _stage_analyze(spec, plan: Plan, trained: dict, files: dict, folder: Path) -> dict:
     """Every seed's learned matrices against the true ones at the same q: the first seed's
     analysis in ``folder`` (the report's headline), each further seed's in ``folder/seed-S``."""
     from learn.data import load_dataset
@@ -755,7 +788,9 @@ def _stage_analyze(spec, plan: Plan, trained: dict, folder: Path) -> dict:
     # the force terms along the training trajectories the models learned from (every member
     # trained on the same data and split, so one draw of samples serves them all)
     info = runs[0].info
-    samples = data_samples(load_dataset(info["dataset"]["path"]), info["split"]["train"],
+    # the data file as this output folder holds it (the run's config.json has the path it
+    # had when it trained, which moves with the folder)
+    samples = data_samples(load_dataset(files["physics"]["path"]), info["split"]["train"],
                            count=plan.analysis_points * 10)
     seeds = []
     for i, run in enumerate(runs):

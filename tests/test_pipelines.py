@@ -124,6 +124,30 @@ def test_second_call_skips_finished_stages(quick_runs):
     assert a == b
 
 
+def test_a_moved_output_folder_keeps_its_finished_stages(quick_runs, tmp_path, monkeypatch):
+    """Stage records name paths inside the output folder as $OUT/...: a copy of the folder,
+    reached by a relative path from another working directory, reuses every stage and its
+    report links only files inside it (before, it linked the old folder's files, and the
+    sections read from them went missing)."""
+    import shutil
+
+    first = quick_runs("task1")
+    moved = tmp_path / "elsewhere" / "t1"
+    shutil.copytree(first.out_dir, moved)
+    done = sorted(moved.glob("**/done.json"))
+    assert all(str(first.out_dir) not in p.read_text() for p in done)
+    assert any("$OUT/data/" in p.read_text() for p in done)
+    monkeypatch.chdir(tmp_path)
+    lines = []
+    again = reproduce(first.config, Path("elsewhere") / "t1", log=lines.append)
+    assert sum("skipped" in line for line in lines) == len(done)
+    text = again.report.read_text()
+    assert "Acceleration terms" in text and "](../" not in text
+    files = again.results["data"]["variants"]["main"]["physics"]
+    assert Path(files["path"]).resolve().is_relative_to(moved.resolve())
+    assert "elsewhere" in again.results["variants"]["main"]["models"]["lagrangian"]["train"]["run"]
+
+
 def test_changed_training_settings_retrain_from_scratch(quick_runs, tmp_path):
     """A run folder trained on other settings is not resumed: the new budget is trained."""
     import dataclasses
