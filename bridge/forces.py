@@ -67,6 +67,8 @@ class ForceComparison:
             when the inputs hold the arm near equilibrium (None without inputs).
         message: one line saying what the numbers mean.
         meta: where the samples came from (data file, trajectories, seed).
+        qdd_per_coordinate: with ``"qdd"``, its relative error in each coordinate of q: a
+            small overall error can hide a large one in a coordinate of small accelerations.
         terms: per term, the true and the scaled learned force at each sample, (N, n) each
             (for plots; not in :meth:`to_dict`). In the acceleration frame, ``"qdd"`` (the
             whole q̈) when the models gave it; it is not counted in ``cancellation``.
@@ -81,6 +83,7 @@ class ForceComparison:
     message: str
     meta: dict[str, Any] = field(default_factory=dict)
     frame: str = "force"
+    qdd_per_coordinate: list[float | None] | None = None
     terms: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -94,6 +97,7 @@ class ForceComparison:
             "alignment": self.alignment,
             "message": self.message,
             "meta": dict(self.meta),
+            "qdd_per_coordinate": self.qdd_per_coordinate,
         }
 
 
@@ -155,6 +159,7 @@ def compare_forces(
         rms[key] = float(np.sqrt(np.mean(np.sum(ft[key] ** 2, axis=1))))
         err[key] = float(np.sqrt(e2[key]) / norm) if norm > 0 else None
     terms = {k: (ft[k], scale * fl[k]) for k in TERMS}
+    per_coord = None
     if qdd is not None:
         if frame != "acceleration":
             raise UserError("qdd: the whole acceleration is compared in the acceleration frame")
@@ -164,6 +169,9 @@ def compare_forces(
         err["qdd"] = float(np.linalg.norm(e) / norm) if norm > 0 else None
         rms["qdd"] = float(np.sqrt(np.mean(np.sum(tq**2, axis=1))))
         terms["qdd"] = (tq, scale * lq)
+        col = np.linalg.norm(tq, axis=0)
+        per_coord = [float(a / b) if b > 0 else None
+                     for a, b in zip(np.linalg.norm(e, axis=0), col, strict=True)]  # fmt: skip
     parts = e2["G"] + e2["D_qd"] + e2["A_u"]
     # errors at round-off (relative 1e-12 of the terms) say nothing about cancelling
     size = sum(float(np.sum(ft[k] ** 2)) for k in ("G", "D_qd", "A_u"))
@@ -174,7 +182,7 @@ def compare_forces(
     return ForceComparison(
         samples=N, scale=float(scale), rms=rms, error=err, cancellation=cancellation,
         alignment=alignment, message=_message(cancellation, alignment, frame),
-        meta=dict(meta or {}), frame=frame, terms=terms,
+        meta=dict(meta or {}), frame=frame, qdd_per_coordinate=per_coord, terms=terms,
     )  # fmt: skip
 
 
@@ -262,6 +270,10 @@ def markdown_lines(d: dict[str, Any] | None, *, heading: str | None = "") -> lis
         e = d["error"].get(key)
         cell = "—" if e is None else f"{100 * e:.3g} %"
         lines.append(f"| {labels[key]} | {d['rms'][key]:.3g} | {cell} |")
+    coords = d.get("qdd_per_coordinate")
+    if coords:
+        cells = ", ".join("—" if e is None else f"{100 * e:.3g} %" for e in coords)
+        lines += ["", f"q̈'s relative error per coordinate of q: {cells}."]
     c, a = d.get("cancellation"), d.get("alignment")
     extra = [f"cancellation ‖e_net‖/√Σ‖e_term‖² = {c:.3g}" if c is not None else None,
              f"alignment of the true {labels['G']} and {labels['A_u']} = {a:.3g}"

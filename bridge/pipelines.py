@@ -464,7 +464,7 @@ def reproduce(
                 entry["analyze"] = stages.run(
                     f"analyze/{variant.name}/{kind}",
                     {"train": settings, "points": plan.analysis_points, "every_seed": True,
-                     "force_samples": plan.analysis_points * 10, "accelerations": 2},
+                     "force_samples": plan.analysis_points * 10, "accelerations": 3},
                     lambda d, t=tr, f=files: _stage_analyze(spec, plan, t, f, d),
                 )
             vres["models"][kind] = entry

@@ -231,8 +231,13 @@ def test_analyze_compares_the_whole_acceleration_of_a_network():
     assert a.error["qdd"] == pytest.approx(
         np.linalg.norm(e) / np.linalg.norm(a.terms["qdd"][0]), rel=1e-10)
     assert "qdd" not in stiff.forces.error  # the force frame has no q̈
+    # per coordinate: the error of each component of q̈ against that component
+    col = [np.linalg.norm(e[:, i]) / np.linalg.norm(a.terms["qdd"][0][:, i]) for i in range(2)]
+    assert a.qdd_per_coordinate == pytest.approx(col, rel=1e-10)
+    assert acc.qdd_per_coordinate[0] < 1e-12 and stiff.forces.qdd_per_coordinate is None
+    assert a.to_dict()["qdd_per_coordinate"] == a.qdd_per_coordinate
     lines = "\n".join(markdown_lines(a.to_dict()))
-    assert "| q̈ (C q̇ too) |" in lines
+    assert "| q̈ (C q̇ too) |" in lines and "q̈'s relative error per coordinate of q: " in lines
     with pytest.raises(UserError, match="qdd: the whole acceleration is compared in the"):
         mats, qd3, u3 = _stacks(N=5, mass=True)
         compare_forces(MatrixStack(**mats), MatrixStack(**mats), qd3, u3, qdd=(qd3, qd3))
