@@ -257,6 +257,8 @@ def _forces(true_model, learned_model, kind, results, samples):
     true = true_matrices(true_model, qs)
     check_q(qs, true.N, true.n)
     learned = learned_matrices(learned_model, qs)
+    if u is None:  # no inputs given: zero inputs
+        u = np.zeros((len(qs), true.m or 0))
     forces = None
     if scale is not None:
         fmeta = dict(meta, scale_from="alpha") if kind != "hamiltonian" else meta

@@ -223,6 +223,8 @@ def test_analyze_compares_the_whole_acceleration_of_a_network():
     samples = (qs, qd, np.zeros((25, 0)))
     acc = analyze(task1, net(), q, transforms=("alpha",), samples=samples).accelerations
     assert acc.error["qdd"] < 1e-12 and acc.error["net"] < 1e-12
+    none = analyze(task1, net(), q, transforms=("alpha",), samples=(qs, qd, None))
+    assert none.accelerations.error["qdd"] < 1e-12  # u = None: no inputs
     np.testing.assert_allclose(acc.terms["qdd"][0], task1.qdd(qs, qd), rtol=1e-12)
     stiff = analyze(task1, net(1.1), q, transforms=("alpha",), samples=samples)
     a = stiff.accelerations
