@@ -151,27 +151,24 @@ def compare_forces(
     if not np.isfinite(scale) or scale == 0:
         raise UserError(f"scale: expected a finite non-zero number, got {scale}")
     ft, fl = force_terms(true, qd, u, frame), force_terms(learned, qd, u, frame)
-    err, rms, e2 = {}, {}, {}
-    for key in TERMS:
+    if qdd is not None:
+        if frame != "acceleration":
+            raise UserError("qdd: the whole acceleration is compared in the acceleration frame")
+        ft["qdd"], fl["qdd"] = (_samples(a, f"qdd[{i}]", N, n) for i, a in enumerate(qdd))
+    err, rms, e2, terms = {}, {}, {}, {}
+    for key in ft:
         e = scale * fl[key] - ft[key]
         norm = float(np.linalg.norm(ft[key]))
         e2[key] = float(np.sum(e * e))
         rms[key] = float(np.sqrt(np.mean(np.sum(ft[key] ** 2, axis=1))))
         err[key] = float(np.sqrt(e2[key]) / norm) if norm > 0 else None
-    terms = {k: (ft[k], scale * fl[k]) for k in TERMS}
+        terms[key] = (ft[key], scale * fl[key])
     per_coord = None
     if qdd is not None:
-        if frame != "acceleration":
-            raise UserError("qdd: the whole acceleration is compared in the acceleration frame")
-        tq, lq = (_samples(a, f"qdd[{i}]", N, n) for i, a in enumerate(qdd))
-        e = scale * lq - tq
-        norm = float(np.linalg.norm(tq))
-        err["qdd"] = float(np.linalg.norm(e) / norm) if norm > 0 else None
-        rms["qdd"] = float(np.sqrt(np.mean(np.sum(tq**2, axis=1))))
-        terms["qdd"] = (tq, scale * lq)
-        col = np.linalg.norm(tq, axis=0)
+        tq, lq = terms["qdd"]
         per_coord = [float(a / b) if b > 0 else None
-                     for a, b in zip(np.linalg.norm(e, axis=0), col, strict=True)]  # fmt: skip
+                     for a, b in zip(np.linalg.norm(lq - tq, axis=0), np.linalg.norm(tq, axis=0),
+                                     strict=True)]  # fmt: skip
     parts = e2["G"] + e2["D_qd"] + e2["A_u"]
     # errors at round-off (relative 1e-12 of the terms) say nothing about cancelling
     size = sum(float(np.sum(ft[k] ** 2)) for k in ("G", "D_qd", "A_u"))
