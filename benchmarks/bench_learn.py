@@ -34,9 +34,9 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import optax  # noqa: E402
 
-from learn.integrate import rollout  # noqa: E402
-from learn.losses import Pairs, pair_loss  # noqa: E402
-from learn.models import ModelConfig, make_model  # noqa: E402
+from softpinn.learn.integrate import rollout  # noqa: E402
+from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
+from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
 
 KINDS = ("lagrangian", "lagrangian-hessian", "hamiltonian", "blackbox")
 

@@ -33,9 +33,9 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
-from learn.losses import Pairs, pair_loss  # noqa: E402
-from learn.models import ModelConfig, make_model  # noqa: E402
-from learn.train import TrainConfig, _Group, _programs, train  # noqa: E402
+from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
+from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
+from softpinn.learn.train import TrainConfig, _Group, _programs, train  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from datagen import make_dataset  # noqa: E402

@@ -13,7 +13,7 @@ import importlib
 import sys
 
 #: Modules that contribute subcommands, in the order they appear in ``--help``.
-COMMAND_MODULES = ("bridge.cli_symbolic", "bridge.cli_learn", "bridge.cli_bridge")
+COMMAND_MODULES = ("softpinn.bridge.cli_symbolic", "softpinn.bridge.cli_learn", "softpinn.bridge.cli_bridge")
 
 
 class Parser(argparse.ArgumentParser):

@@ -65,9 +65,9 @@ def cmd_analyze(args) -> int:
     _enable_x64()
     import numpy as np
 
-    from learn.train import load_run
-    from symbolic.model import TrueModel
-    from symbolic.spec import load_spec
+    from softpinn.learn.train import load_run
+    from softpinn.symbolic.model import TrueModel
+    from softpinn.symbolic.spec import load_spec
 
     from .analysis import analysis_q, analyze, write_report
     from .transforms import TRANSFORMS
@@ -116,7 +116,7 @@ def _force_samples(run, data_path, count, transforms):
     accelerations are compared (said on stderr)."""
     from pathlib import Path
 
-    from learn.data import load_dataset
+    from softpinn.learn.data import load_dataset
 
     from .forces import data_samples
 

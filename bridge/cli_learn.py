@@ -164,9 +164,9 @@ def _enable_x64():
 
 
 def _model_config(args, n: int, m: int, data=None):
-    from learn.data import mass_scale
-    from learn.errors import UserError
-    from learn.models import ModelConfig
+    from softpinn.learn.data import mass_scale
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.models import ModelConfig
 
     if args.model is None:
         raise UserError(f"--model is required: one of {', '.join(MODEL_KINDS)}")
@@ -277,10 +277,10 @@ class _Bar:
 
 def cmd_train(args) -> int:
     _enable_x64()
-    from learn.checkpoint import read_json
-    from learn.data import load_dataset
-    from learn.errors import UserError
-    from learn.train import TrainConfig, train
+    from softpinn.learn.checkpoint import read_json
+    from softpinn.learn.data import load_dataset
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.train import TrainConfig, train
 
     if args.resume and args.force:
         raise UserError("--resume and --force exclude each other")
@@ -365,13 +365,13 @@ def _nulls(obj):
 
 def cmd_predict(args) -> int:
     _enable_x64()
-    from learn.predict import predict
+    from softpinn.learn.predict import predict
 
     traj = args.trajectories
     if len(traj) == 1 and traj[0] in ("auto", "test", "all"):
         traj = traj[0]
     else:
-        from learn.errors import UserError
+        from softpinn.learn.errors import UserError
 
         try:
             traj = [int(t) for t in traj]

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from symbolic.errors import UserError
+from softpinn.symbolic.errors import UserError
 
 SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
 
@@ -152,7 +152,7 @@ def register(subparsers) -> None:
 
 
 def cmd_models(args) -> int:
-    from symbolic.spec import list_presets, load_spec
+    from softpinn.symbolic.spec import list_presets, load_spec
 
     rows = []
     for name in list_presets():
@@ -185,8 +185,8 @@ def _vector(flag: str, values, size: int, model: str) -> np.ndarray:
 
 
 def cmd_matrices(args) -> int:
-    from symbolic.model import TrueModel
-    from symbolic.spec import load_spec
+    from softpinn.symbolic.model import TrueModel
+    from softpinn.symbolic.spec import load_spec
 
     spec = load_spec(args.model)
     q = _vector("--q", args.q, spec.n, spec.name)
@@ -225,10 +225,10 @@ def cmd_matrices(args) -> int:
 
 
 def cmd_derive(args) -> int:
-    from symbolic.codegen import generate
-    from symbolic.eom import derive
-    from symbolic.functions import functions
-    from symbolic.spec import load_spec
+    from softpinn.symbolic.codegen import generate
+    from softpinn.symbolic.eom import derive
+    from softpinn.symbolic.functions import functions
+    from softpinn.symbolic.spec import load_spec
 
     spec = load_spec(args.model)
     out = Path(args.out) if args.out else Path(f"{spec.name}-eom")
@@ -283,14 +283,14 @@ def cmd_derive(args) -> int:
 
 
 def cmd_simulate(args) -> int:
-    from symbolic.datasets import (
+    from softpinn.symbolic.datasets import (
         data_config,
         make_dataset,
         plan_dataset,
         resample,
         write_dataset,
     )
-    from symbolic.spec import load_spec
+    from softpinn.symbolic.spec import load_spec
 
     spec = load_spec(args.model)
     cfg = data_config(spec)
@@ -384,7 +384,7 @@ def cmd_simulate(args) -> int:
 @contextlib.contextmanager
 def _warnings_as_lines():
     """Show the compiler fallback warning as one line ``softpinn: warning: ...``."""
-    from symbolic.codegen import CompilerWarning
+    from softpinn.symbolic.codegen import CompilerWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CompilerWarning)
@@ -403,7 +403,7 @@ def _sibling(path: Path, rate: float) -> Path:
 
 
 def main(argv=None) -> int:  # pragma: no cover - convenience for ``python -m``
-    from bridge.cli import main as cli_main
+    from softpinn.bridge.cli import main as cli_main
 
     return cli_main(argv)
 

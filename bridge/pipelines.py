@@ -411,7 +411,7 @@ def reproduce(
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from symbolic.spec import load_spec
+    from softpinn.symbolic.spec import load_spec
 
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
@@ -517,7 +517,7 @@ def machine_description() -> str:
 
 
 def _stage_data(spec, plan: Plan, folder: Path) -> dict:
-    from symbolic.datasets import make_dataset, resample, select_trajectories, write_dataset
+    from softpinn.symbolic.datasets import make_dataset, resample, select_trajectories, write_dataset
 
     out: dict[str, Any] = {"variants": {}}
     sources = {v.source for v in plan.variants}
@@ -554,8 +554,8 @@ def _stage_data(spec, plan: Plan, folder: Path) -> dict:
 
 def _model_config(spec, plan: Plan, kind: str, data, train_ids):
     """The model of ``kind``; ``data`` (a learn Dataset) and ``train_ids`` set mass_init."""
-    from learn.data import mass_scale
-    from learn.models import ModelConfig
+    from softpinn.learn.data import mass_scale
+    from softpinn.learn.models import ModelConfig
 
     m = plan.models[kind]
     mass_init = None
@@ -573,7 +573,7 @@ def _model_config(spec, plan: Plan, kind: str, data, train_ids):
 def _same_run(run_dir: Path, tc) -> bool:
     """Whether ``run_dir`` holds a checkpoint of a run with exactly the settings ``tc`` (one
     interrupted before it finished is resumed; one of other settings is trained afresh)."""
-    from learn.train import TrainConfig
+    from softpinn.learn.train import TrainConfig
 
     if not ((run_dir / "checkpoint.eqx").is_file() or any(run_dir.glob("seed-*/checkpoint.eqx"))):
         return False
@@ -603,9 +603,9 @@ def variant_model(plan: Plan, variant: Variant, kind: str,
 
 def _stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, folder: Path,
                  progress) -> dict:
-    from learn.data import load_dataset
-    from learn.errors import UserError as LearnUserError
-    from learn.train import TrainConfig, train
+    from softpinn.learn.data import load_dataset
+    from softpinn.learn.errors import UserError as LearnUserError
+    from softpinn.learn.train import TrainConfig, train
 
     role = "blackbox" if kind == "blackbox" else "physics"
     f = files[role]
@@ -649,10 +649,10 @@ def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pa
     rollout: the first part is the horizon's), and rollouts with another step size."""
     import jax.numpy as jnp
 
-    from learn.data import load_dataset, make_pairs, trajectories
-    from learn.losses import Pairs
-    from learn.predict import evaluate, one_step_errors, rollouts
-    from learn.train import load_ensemble
+    from softpinn.learn.data import load_dataset, make_pairs, trajectories
+    from softpinn.learn.losses import Pairs
+    from softpinn.learn.predict import evaluate, one_step_errors, rollouts
+    from softpinn.learn.train import load_ensemble
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     data = load_dataset(f["path"])
@@ -722,8 +722,8 @@ def _integration(m: Mapping[str, Any]) -> dict[str, Any]:
 def _stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
     """On the test pairs: the true model's one-step loss, stepped as the model is (the floor),
     and the loss of a model that learned no forces (floors.py)."""
-    from learn.data import load_dataset, make_pairs
-    from symbolic.model import TrueModel
+    from softpinn.learn.data import load_dataset, make_pairs
+    from softpinn.symbolic.model import TrueModel
 
     from .floors import drift_baseline, integration_floor
 
@@ -744,9 +744,9 @@ def _stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
 def _stage_modes(spec, kind: str, files: dict, trained: dict) -> dict:
     """Eigenvalues of the true and the learned (first seed) dynamics linearised at rest at the
     training data's mean q with its mean input (modes.py)."""
-    from learn.data import load_dataset
-    from learn.train import load_ensemble
-    from symbolic.model import TrueModel
+    from softpinn.learn.data import load_dataset
+    from softpinn.learn.train import load_ensemble
+    from softpinn.symbolic.model import TrueModel
 
     from .modes import modes
 
@@ -775,9 +775,9 @@ def _truncated_error(rollout: dict, horizon: float) -> float:
 def _stage_analyze(spec, plan: Plan, trained: dict, files: dict, folder: Path) -> dict:
     """Every seed's learned matrices against the true ones at the same q: the first seed's
     analysis in ``folder`` (the report's headline), each further seed's in ``folder/seed-S``."""
-    from learn.data import load_dataset
-    from learn.train import load_ensemble
-    from symbolic.model import TrueModel
+    from softpinn.learn.data import load_dataset
+    from softpinn.learn.train import load_ensemble
+    from softpinn.symbolic.model import TrueModel
 
     from .analysis import analysis_q, analyze, summary_numbers, write_report
     from .forces import data_samples

@@ -343,7 +343,7 @@ def _fmt(x) -> str:
 
 
 def _load_history(run: Path) -> list[dict]:
-    from learn.checkpoint import read_history
+    from softpinn.learn.checkpoint import read_history
 
     path = run / "history.csv"
     if not path.is_file():
@@ -360,7 +360,7 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from learn.plots import plot_loss_curves
+    from softpinn.learn.plots import plot_loss_curves
 
     lines: list[str] = []
     hist = {k: _load_history(Path(e["train"]["run"])) for k, e in models.items()}

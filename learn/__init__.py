@@ -3,7 +3,7 @@ dynamics models, one-step Runge-Kutta losses, training and prediction. Never imp
 
 Core API::
 
-    from learn import ModelConfig, TrainConfig, train, load_run, predict
+    from softpinn.learn import ModelConfig, TrainConfig, train, load_run, predict
     config = TrainConfig(ModelConfig(kind="lagrangian", n=2, m=0), epochs=300)
     result = train("data.npz", config, "runs/lnn")       # writes config.json, model.eqx, ...
     run = load_run("runs/lnn"); run.model.matrices(q)     # learned M, D, G, A at q

@@ -3,7 +3,7 @@ generated C code, simulation and dataset files. Never imports jax.
 
 Core API::
 
-    from symbolic import functions, TrueModel
+    from softpinn.symbolic import functions, TrueModel
     fns = functions("task4")          # dict of casadi.Function: M, M_inv, G, D, A, C, Cqd,
                                       # forward, inverse, energy, kinetic, potential,
                                       # momentum, hamiltonian, ode

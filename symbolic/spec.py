@@ -158,12 +158,12 @@ def _plain(value: Any) -> Any:
 
 def list_presets() -> list[str]:
     """Names of the presets shipped with the package (``task1`` ... ``task5``)."""
-    files = resources.files("symbolic.presets").iterdir()
+    files = resources.files("softpinn.symbolic.presets").iterdir()
     return sorted(f.name[:-5] for f in files if f.name.endswith(".toml"))
 
 
 def preset_path(name: str) -> Path:
-    return Path(str(resources.files("symbolic.presets").joinpath(f"{name}.toml")))
+    return Path(str(resources.files("softpinn.symbolic.presets").joinpath(f"{name}.toml")))
 
 
 def load_spec(model: str | Path | ModelSpec) -> ModelSpec:

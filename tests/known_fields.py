@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 
-from learn.linalg import cholesky
+from softpinn.learn.linalg import cholesky
 
 
 class Field(eqx.Module):

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from bridge.analysis import (
+from softpinn.bridge.analysis import (
     AnalysisResult,
     analysis_q,
     analyze,
@@ -19,10 +19,10 @@ from bridge.analysis import (
     summary_numbers,
     write_report,
 )
-from bridge.errors import UserError
-from bridge.tables import read_csv
-from learn.models import ModelConfig, make_model
-from symbolic.model import TrueModel
+from softpinn.bridge.errors import UserError
+from softpinn.bridge.tables import read_csv
+from softpinn.learn.models import ModelConfig, make_model
+from softpinn.symbolic.model import TrueModel
 
 TABLE_V_Q = np.array([[0.5, 0.5], [0.0, 0.0], [0.0, -0.8]])
 

@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from learn import checkpoint as ckpt
-from learn.errors import UserError
+from softpinn.learn import checkpoint as ckpt
+from softpinn.learn.errors import UserError
 
 
 def test_atomic_write_replaces_and_leaves_no_temp(tmp_path):

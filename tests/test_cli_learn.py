@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from datagen import make_dataset, simulate, write
 
-from bridge.cli import main
+from softpinn.bridge.cli import main
 
 # the same settings as tests/datagen.py:blackbox_train_config, so the program compiles once
 TRAIN = [
@@ -105,7 +105,7 @@ def test_train_bad_dataset_one_line(change, message, tmp_path, capsys):
 
 
 def test_train_mass_init_from_data(data, tmp_path, capsys):
-    from learn.data import load_dataset, mass_scale
+    from softpinn.learn.data import load_dataset, mass_scale
 
     out = tmp_path / "h"
     args = ["--model", "hamiltonian", "--width", "8", "--depth", "1", "--epochs", "1",
@@ -146,8 +146,8 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
 def test_progress_bars_count_epochs_then_lbfgs_iterations(capsys):
     """The epoch bar counts AdamW epochs; the L-BFGS finish gets a bar of its own that counts
     its iterations (the epoch bar used to stand still through it)."""
-    from bridge.cli_bridge import _EpochBar
-    from bridge.cli_learn import _Bar
+    from softpinn.bridge.cli_bridge import _EpochBar
+    from softpinn.bridge.cli_learn import _Bar
 
     def info(phase, epoch, done=None):
         return {"label": "0", "epoch": epoch, "epochs": 4, "phase": phase, "lbfgs_steps": 30,

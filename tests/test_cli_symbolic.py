@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from bridge.cli import main
-from symbolic.datasets import read_dataset
+from softpinn.bridge.cli import main
+from softpinn.symbolic.datasets import read_dataset
 
 
 @pytest.fixture(autouse=True)

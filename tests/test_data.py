@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
 
-from learn.data import load_dataset, make_pairs, mass_scale, split_trajectories
-from learn.errors import UserError
+from softpinn.learn.data import load_dataset, make_pairs, mass_scale, split_trajectories
+from softpinn.learn.errors import UserError
 
 
 @pytest.fixture(scope="module")
@@ -181,7 +181,7 @@ def test_mass_scale_is_the_median_mass_or_inverse_mass(msd_file):
 def test_difference_accelerations_converge_at_second_order(tmp_path):
     """Central differences of q̇ against the recorded q̈: error O(dt²) inside and at the ends,
     never mixing two trajectories."""
-    from learn.data import difference_accelerations
+    from softpinn.learn.data import difference_accelerations
 
     errors = []
     for rate in (50.0, 100.0, 200.0):

@@ -10,10 +10,10 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from symbolic import TrueModel, functions
-from symbolic.eom import derive
-from symbolic.functions import _Builder
-from symbolic.spec import spec_from_dict
+from softpinn.symbolic import TrueModel, functions
+from softpinn.symbolic.eom import derive
+from softpinn.symbolic.functions import _Builder
+from softpinn.symbolic.spec import spec_from_dict
 
 
 def make_spec(nseg, param="delta", radius=0.03, d=0.5, actuation="tip-wrench"):

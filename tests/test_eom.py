@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from symbolic import TrueModel, UserError, functions
+from softpinn.symbolic import TrueModel, UserError, functions
 
 
 def test_mass_spring_damper_matches_eq25():

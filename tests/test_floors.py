@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bridge.floors import drift_baseline, integration_floor, true_vector_field
-from learn.data import PairData
+from softpinn.bridge.floors import drift_baseline, integration_floor, true_vector_field
+from softpinn.learn.data import PairData
 
 
 class Oscillator:

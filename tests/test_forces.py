@@ -12,14 +12,14 @@ import pytest
 from known_fields import Field, MassField
 from test_analysis import ScaledTask1
 
-from bridge.analysis import analyze, sample_q, write_report
-from bridge.errors import UserError
-from bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
-from bridge.matrices import MatrixStack
-from bridge.plots import plot_forces
-from bridge.transforms import fit_transform
-from learn.models import HamiltonianNet, ModelConfig
-from symbolic.model import TrueModel
+from softpinn.bridge.analysis import analyze, sample_q, write_report
+from softpinn.bridge.errors import UserError
+from softpinn.bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
+from softpinn.bridge.matrices import MatrixStack
+from softpinn.bridge.plots import plot_forces
+from softpinn.bridge.transforms import fit_transform
+from softpinn.learn.models import HamiltonianNet, ModelConfig
+from softpinn.symbolic.model import TrueModel
 
 
 def _stacks(N=400, n=3, m=2, seed=0, mass=False):

@@ -9,9 +9,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from symbolic import load_spec
-from symbolic.functions import SIGNATURES, function_sizes, functions, safe_name
-from symbolic.spec import preset_path
+from softpinn.symbolic import load_spec
+from softpinn.symbolic.functions import SIGNATURES, function_sizes, functions, safe_name
+from softpinn.symbolic.spec import preset_path
 
 
 @pytest.mark.parametrize("name", ["task1", "task2", "task3", "task4", "task5"])

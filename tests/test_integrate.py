@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
-from learn.errors import UserError
-from learn.integrate import rk4_step, rollout, step
-from learn.models import LagrangianNet, ModelConfig
+from softpinn.learn.errors import UserError
+from softpinn.learn.integrate import rk4_step, rollout, step
+from softpinn.learn.models import LagrangianNet, ModelConfig
 
 
 def analytic_lagrangian(n, m, M, K, D, A):

@@ -13,8 +13,15 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _modules(package: str) -> list[str]:
-    return [f"{package}.{p.stem}" for p in sorted((ROOT / package).glob("*.py"))
-            if p.stem != "__init__"]
+    """Every module of one subpackage, nested folders included, by its installed name."""
+    base = ROOT / package
+    names = []
+    for p in sorted(base.rglob("*.py")):
+        parts = p.relative_to(base).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        names.append(".".join(("softpinn", package, *parts)))
+    return names
 
 
 @pytest.mark.parametrize(
@@ -22,7 +29,7 @@ def _modules(package: str) -> list[str]:
                                ("learn", ("casadi", "sympy"))]
 )
 def test_package_does_not_import(package, forbidden):
-    mods = [package, *_modules(package)]
+    mods = _modules(package)
     code = (
         "import importlib, sys\n"
         f"for m in {mods!r}: importlib.import_module(m)\n"
@@ -32,3 +39,92 @@ def test_package_does_not_import(package, forbidden):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=ROOT)
     assert out.stdout.strip() == "", f"{package} imports {out.stdout.strip()}"
+
+
+def test_one_namespace_nothing_generic_top_level(tmp_path):
+    """``softpinn.symbolic``, ``.learn`` and ``.bridge`` import from anywhere; the bare generic
+    names (``symbolic``, ``learn``, ``bridge``) are not installed (run outside the repository,
+    whose root would otherwise be on ``sys.path``)."""
+    code = (
+        "import importlib, softpinn, softpinn.symbolic, softpinn.learn, softpinn.bridge\n"
+        "bad = []\n"
+        "for name in ('symbolic', 'learn', 'bridge'):\n"
+        "    try:\n"
+        "        importlib.import_module(name)\n"
+        "        bad.append(name)\n"
+        "    except ImportError:\n"
+        "        pass\n"
+        "print(softpinn.__version__, ','.join(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=tmp_path)
+    version, bad = (out.stdout.strip().split(" ") + [""])[:2]
+    assert version and version != "0+unknown"
+    assert bad == "", f"generic top-level packages importable: {bad}"
+
+
+def test_lazy_entry_points_resolve():
+    """Every name ``import softpinn`` advertises resolves to a real object."""
+    import softpinn
+
+    for name in softpinn.__all__:
+        assert getattr(softpinn, name) is not None, name
+
+
+def _import_graph() -> dict[str, set[str]]:
+    """Module -> the softpinn modules it imports (module-level and function-local alike), read
+    from the source with ``ast``; ``from pkg import name`` counts as importing ``pkg.name`` when
+    that is a module, else ``pkg`` itself."""
+    import ast
+
+    modules = {m: None for pkg in ("symbolic", "learn", "bridge") for m in _modules(pkg)}
+    modules["softpinn"] = None
+    graph: dict[str, set[str]] = {}
+    for mod in modules:
+        rel = mod.split(".")[1:]
+        path = ROOT.joinpath(*rel)
+        path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+        is_pkg = path.name == "__init__.py"
+        deps: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                if node.level:
+                    base = mod.split(".") if is_pkg else mod.split(".")[:-1]
+                    base = base[: len(base) - node.level + 1]
+                    src = ".".join(base + ([node.module] if node.module else []))
+                else:
+                    src = node.module or ""
+                targets = [f"{src}.{a.name}" if f"{src}.{a.name}" in modules else src
+                           for a in node.names]
+            else:
+                continue
+            deps |= {t for t in targets if t in modules and t != mod}
+        graph[mod] = deps
+    return graph
+
+
+def test_no_import_cycles():
+    """No module reaches itself through imports, function-local ones included."""
+    graph = _import_graph()
+    assert len(graph) > 30
+    state: dict[str, int] = {}
+    stack: list[str] = []
+    cycles: list[list[str]] = []
+
+    def visit(m):
+        state[m] = 1
+        stack.append(m)
+        for d in sorted(graph[m]):
+            if state.get(d) == 1:
+                cycles.append(stack[stack.index(d):] + [d])
+            elif d not in state:
+                visit(d)
+        stack.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)

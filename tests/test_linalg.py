@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from learn.linalg import (
+from softpinn.learn.linalg import (
     cho_inverse,
     cho_solve,
     cholesky,

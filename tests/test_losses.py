@@ -9,9 +9,9 @@ import numpy as np
 import optax
 import pytest
 
-from learn.errors import UserError
-from learn.integrate import rollout, step
-from learn.losses import (
+from softpinn.learn.errors import UserError
+from softpinn.learn.integrate import rollout, step
+from softpinn.learn.losses import (
     Pairs,
     Windows,
     accel_loss,
@@ -20,7 +20,7 @@ from learn.losses import (
     rollout_errors,
     rollout_loss,
 )
-from learn.models import ModelConfig, make_model
+from softpinn.learn.models import ModelConfig, make_model
 
 SMALL = dict(mass=(8, 1), potential=(8, 1), damping=(4, 1), input=(4, 1), hidden=(8, 1))
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
-from learn.errors import UserError
-from learn.models import (
+from softpinn.learn.errors import UserError
+from softpinn.learn.models import (
     BlackBoxNet,
     HamiltonianNet,
     LagrangianHessianNet,

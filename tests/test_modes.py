@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
-from bridge.errors import UserError
-from bridge.modes import format_modes, modes, true_jacobian
-from learn.models import LagrangianNet, ModelConfig
-from learn.nets import ZeroMatrix
-from symbolic.model import TrueModel
+from softpinn.bridge.errors import UserError
+from softpinn.bridge.modes import format_modes, modes, true_jacobian
+from softpinn.learn.models import LagrangianNet, ModelConfig
+from softpinn.learn.nets import ZeroMatrix
+from softpinn.symbolic.model import TrueModel
 
 jax.config.update("jax_enable_x64", True)
 

@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from learn.errors import UserError
-from learn.nets import (
+from softpinn.learn.errors import UserError
+from softpinn.learn.nets import (
     MLP,
     CholeskyField,
     ConstantCholesky,

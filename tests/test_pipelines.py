@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.cli import main
-from bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
-from symbolic.spec import load_spec
+from softpinn.bridge.cli import main
+from softpinn.bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
+from softpinn.symbolic.spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -96,9 +96,9 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
 
 def _errors_are_reported_at_lambda_one(result, text):
     """Task 3's Hamiltonian network trains with λ = 0.1; its reported errors use λ = 1."""
-    from learn.data import load_dataset
-    from learn.predict import evaluate
-    from learn.train import load_run
+    from softpinn.learn.data import load_dataset
+    from softpinn.learn.predict import evaluate
+    from softpinn.learn.train import load_run
 
     entry = result.results["variants"]["main"]["models"]["hamiltonian"]
     assert entry["train"]["config"]["loss_weight"] == 0.1
@@ -168,7 +168,7 @@ def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
     import dataclasses
     import shutil
 
-    import bridge.pipelines as pipelines
+    import softpinn.bridge.pipelines as pipelines
 
     first = quick_runs("task1")
     out = tmp_path / "task1"

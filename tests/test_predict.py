@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, msd_matrices, simulate, write
 
-from learn.data import load_dataset, trajectories
-from learn.errors import UserError
-from learn.models import DynamicsModel, ModelConfig
-from learn.predict import _reset_mask, evaluate, predict, rollouts
-from learn.train import train
+from softpinn.learn.data import load_dataset, trajectories
+from softpinn.learn.errors import UserError
+from softpinn.learn.models import DynamicsModel, ModelConfig
+from softpinn.learn.predict import _reset_mask, evaluate, predict, rollouts
+from softpinn.learn.train import train
 
 
 class ExactMSD(DynamicsModel):
@@ -128,13 +128,13 @@ def test_predict_on_run_dir_and_plot(msd, tmp_path):
     for key in ("one_step_error", "rollout_error_mean", "rollout_error_std", "horizon"):
         assert key in out
     # the one-step error equals the training loss of the saved (best) model
-    from learn.train import load_run
+    from softpinn.learn.train import load_run
 
     run = load_run(tmp_path / "run")
     assert out["one_step_error"]["mean"] == pytest.approx(
         min(
             r["test_loss"]
-            for r in __import__("learn.checkpoint", fromlist=["x"]).read_history(
+            for r in __import__("softpinn.learn.checkpoint", fromlist=["x"]).read_history(
                 tmp_path / "run" / "history.csv"
             )
         ),

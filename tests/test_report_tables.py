@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bridge.errors import UserError
-from bridge.tables import (
+from softpinn.bridge.errors import UserError
+from softpinn.bridge.tables import (
     format_mean_std,
     format_number,
     load_paper_tables,
@@ -24,7 +24,7 @@ from bridge.tables import (
     transform_table,
     write_table,
 )
-from bridge.transforms import fit_joint, fit_smooth, fit_transform
+from softpinn.bridge.transforms import fit_joint, fit_smooth, fit_transform
 
 TASK4_ROW = {  # Table I, q = [1.2, -0.2, 0.15], mathematical model
     "M": [[1.728e-03, -3.121e-05, -1.957e-03], [-3.121e-05, 1.546e-03, 3.261e-04],
@@ -213,7 +213,7 @@ def test_table_iii_comparison_puts_paper_numbers_in():
 
 
 def test_our_epochs_cell_counts_an_lbfgs_finish():
-    from bridge.report import _epochs
+    from softpinn.bridge.report import _epochs
 
     assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 200}}) == "400 + 200 L-BFGS"
     assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 0}}) == 400

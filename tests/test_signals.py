@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from symbolic.errors import UserError
-from symbolic.signals import (
+from softpinn.symbolic.errors import UserError
+from softpinn.symbolic.signals import (
     KINDS,
     Chirp,
     Multisine,

@@ -6,17 +6,17 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from symbolic import codegen
-from symbolic.functions import functions
-from symbolic.signals import Sinusoid, Step, Zero
-from symbolic.simulate import (
+from softpinn.symbolic import codegen
+from softpinn.symbolic.functions import functions
+from softpinn.symbolic.signals import Sinusoid, Step, Zero
+from softpinn.symbolic.simulate import (
     SimulationConfig,
     SimulationError,
     SingularityError,
     batched,
     simulate,
 )
-from symbolic.spec import spec_from_dict
+from softpinn.symbolic.spec import spec_from_dict
 
 
 @pytest.fixture(scope="module")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from symbolic.errors import UserError
-from symbolic.spec import ModelSpec, SpecError, list_presets, load_spec, spec_from_toml
+from softpinn.symbolic.errors import UserError
+from softpinn.symbolic.spec import ModelSpec, SpecError, list_presets, load_spec, spec_from_toml
 
 GOOD = """
 name = "arm"

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from symbolic import TrueModel
+from softpinn.symbolic import TrueModel
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from symbolic import TrueModel
+from softpinn.symbolic import TrueModel
 
 # the package ships a copy of ../shared/paper/tables.json (tests/test_report_tables.py checks
 # that the copy carries the paper's numbers), so the test does not depend on where shared/ is

@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, tiny_model_config
 
-from learn import checkpoint as ckpt
-from learn.data import load_dataset
-from learn.errors import UserError
-from learn.models import make_model
-from learn.predict import evaluate
-from learn.train import (
+from softpinn.learn import checkpoint as ckpt
+from softpinn.learn.data import load_dataset
+from softpinn.learn.errors import UserError
+from softpinn.learn.models import make_model
+from softpinn.learn.predict import evaluate
+from softpinn.learn.train import (
     _PROGRAM_CACHE,
     TrainConfig,
     TrainingDiverged,

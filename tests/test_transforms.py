@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from bridge.errors import UserError
-from bridge.transforms import (
+from softpinn.bridge.errors import UserError
+from softpinn.bridge.transforms import (
     TRANSFORMS,
     MatrixStack,
     Status,
