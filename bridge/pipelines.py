@@ -517,7 +517,12 @@ def machine_description() -> str:
 
 
 def _stage_data(spec, plan: Plan, folder: Path) -> dict:
-    from softpinn.symbolic.datasets import make_dataset, resample, select_trajectories, write_dataset
+    from softpinn.symbolic.datasets import (
+        make_dataset,
+        resample,
+        select_trajectories,
+        write_dataset,
+    )
 
     out: dict[str, Any] = {"variants": {}}
     sources = {v.source for v in plan.variants}
@@ -648,7 +653,6 @@ def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pa
     """Train and test one-step errors, rollouts over the horizon and a long horizon (one
     rollout: the first part is the horizon's), and rollouts with another step size."""
     import jax.numpy as jnp
-
     from softpinn.learn.data import load_dataset, make_pairs, trajectories
     from softpinn.learn.losses import Pairs
     from softpinn.learn.predict import evaluate, one_step_errors, rollouts

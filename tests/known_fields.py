@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import equinox as eqx
-
 from softpinn.learn.linalg import cholesky
 
 

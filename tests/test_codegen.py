@@ -10,7 +10,6 @@ import warnings
 import casadi as ca
 import numpy as np
 import pytest
-
 from softpinn.symbolic import codegen
 
 

@@ -8,7 +8,6 @@ import json
 
 import numpy as np
 import pytest
-
 from softpinn.symbolic import datasets
 from softpinn.symbolic.datasets import (
     DataError,

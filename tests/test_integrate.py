@@ -7,7 +7,6 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from known_fields import Field, MassField
-
 from softpinn.learn.errors import UserError
 from softpinn.learn.integrate import rk4_step, rollout, step
 from softpinn.learn.models import LagrangianNet, ModelConfig

@@ -10,7 +10,6 @@ import mpmath
 import numpy as np
 import pytest
 import sympy as sp
-
 from softpinn.symbolic import TrueModel
 
 
