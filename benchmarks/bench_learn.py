@@ -33,6 +33,7 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import optax  # noqa: E402
+
 from softpinn.learn.integrate import rollout  # noqa: E402
 from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
 from softpinn.learn.models import ModelConfig, make_model  # noqa: E402

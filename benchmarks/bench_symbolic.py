@@ -23,6 +23,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+
 from softpinn.symbolic import codegen
 from softpinn.symbolic.eom import derive
 from softpinn.symbolic.functions import functions

@@ -32,6 +32,7 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
+
 from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
 from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
 from softpinn.learn.train import TrainConfig, _Group, _programs, train  # noqa: E402

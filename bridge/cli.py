@@ -13,7 +13,11 @@ import importlib
 import sys
 
 #: Modules that contribute subcommands, in the order they appear in ``--help``.
-COMMAND_MODULES = ("softpinn.bridge.cli_symbolic", "softpinn.bridge.cli_learn", "softpinn.bridge.cli_bridge")
+COMMAND_MODULES = (
+    "softpinn.bridge.cli_symbolic",
+    "softpinn.bridge.cli_learn",
+    "softpinn.bridge.cli_bridge",
+)
 
 
 class Parser(argparse.ArgumentParser):

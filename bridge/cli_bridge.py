@@ -64,6 +64,7 @@ def register(subparsers) -> None:
 def cmd_analyze(args) -> int:
     _enable_x64()
     import numpy as np
+
     from softpinn.learn.train import load_run
     from softpinn.symbolic.model import TrueModel
     from softpinn.symbolic.spec import load_spec

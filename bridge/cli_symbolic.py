@@ -20,6 +20,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+
 from softpinn.symbolic.errors import UserError
 
 SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")

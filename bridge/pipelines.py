@@ -653,6 +653,7 @@ def _stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pa
     """Train and test one-step errors, rollouts over the horizon and a long horizon (one
     rollout: the first part is the horizon's), and rollouts with another step size."""
     import jax.numpy as jnp
+
     from softpinn.learn.data import load_dataset, make_pairs, trajectories
     from softpinn.learn.losses import Pairs
     from softpinn.learn.predict import evaluate, one_step_errors, rollouts

@@ -359,6 +359,7 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
     from softpinn.learn.plots import plot_loss_curves
 
     lines: list[str] = []

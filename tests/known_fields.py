@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import equinox as eqx
+
 from softpinn.learn.linalg import cholesky
 
 

@@ -10,6 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+
 from softpinn.bridge.analysis import (
     AnalysisResult,
     analysis_q,

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.plots import plot_entries_scatter, plot_transform_entries
 from softpinn.bridge.transforms import fit_alpha, fit_pointwise, fit_smooth

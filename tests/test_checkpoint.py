@@ -7,6 +7,7 @@ import os
 import jax.numpy as jnp
 import numpy as np
 import pytest
+
 from softpinn.learn import checkpoint as ckpt
 from softpinn.learn.errors import UserError
 

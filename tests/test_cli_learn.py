@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from datagen import make_dataset, simulate, write
+
 from softpinn.bridge.cli import main
 
 # the same settings as tests/datagen.py:blackbox_train_config, so the program compiles once

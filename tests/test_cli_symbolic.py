@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+
 from softpinn.bridge.cli import main
 from softpinn.symbolic.datasets import read_dataset
 

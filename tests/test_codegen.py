@@ -10,6 +10,7 @@ import warnings
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic import codegen
 
 

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
+
 from softpinn.learn.data import load_dataset, make_pairs, mass_scale, split_trajectories
 from softpinn.learn.errors import UserError
 

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+
 from softpinn.symbolic import datasets
 from softpinn.symbolic.datasets import (
     DataError,

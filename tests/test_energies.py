@@ -9,6 +9,7 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic import TrueModel, functions
 from softpinn.symbolic.eom import derive
 from softpinn.symbolic.functions import _Builder

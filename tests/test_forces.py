@@ -10,6 +10,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from known_fields import Field, MassField
+from test_analysis import ScaledTask1
+
 from softpinn.bridge.analysis import analyze, sample_q, write_report
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
@@ -18,7 +20,6 @@ from softpinn.bridge.plots import plot_forces
 from softpinn.bridge.transforms import fit_transform
 from softpinn.learn.models import HamiltonianNet, ModelConfig
 from softpinn.symbolic.model import TrueModel
-from test_analysis import ScaledTask1
 
 
 def _stacks(N=400, n=3, m=2, seed=0, mass=False):

@@ -8,6 +8,7 @@ import re
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic import load_spec
 from softpinn.symbolic.functions import SIGNATURES, function_sizes, functions, safe_name
 from softpinn.symbolic.spec import preset_path

@@ -7,6 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from known_fields import Field, MassField
+
 from softpinn.learn.errors import UserError
 from softpinn.learn.integrate import rk4_step, rollout, step
 from softpinn.learn.models import LagrangianNet, ModelConfig

@@ -8,6 +8,7 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic import kinematics as kin
 from softpinn.symbolic.eom import tip_wrench_matrix
 from softpinn.symbolic.spec import spec_from_dict

@@ -6,6 +6,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+
 from softpinn.learn.linalg import (
     cho_inverse,
     cho_solve,

@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+
 from softpinn.learn.errors import UserError
 from softpinn.learn.integrate import rollout, step
 from softpinn.learn.losses import (

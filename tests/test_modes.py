@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from known_fields import Field, MassField
+
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.modes import format_modes, modes, true_jacobian
 from softpinn.learn.models import LagrangianNet, ModelConfig

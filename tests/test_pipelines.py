@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from softpinn.bridge.cli import main
 from softpinn.bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
 from softpinn.symbolic.spec import load_spec

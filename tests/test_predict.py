@@ -8,6 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, msd_matrices, simulate, write
+
 from softpinn.learn.data import load_dataset, trajectories
 from softpinn.learn.errors import UserError
 from softpinn.learn.models import DynamicsModel, ModelConfig

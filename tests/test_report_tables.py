@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.tables import (
     format_mean_std,

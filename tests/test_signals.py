@@ -7,6 +7,7 @@ import json
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic.errors import UserError
 from softpinn.symbolic.signals import (
     KINDS,

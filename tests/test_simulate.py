@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic import codegen
 from softpinn.symbolic.functions import functions
 from softpinn.symbolic.signals import Sinusoid, Step, Zero

@@ -7,6 +7,7 @@ import math
 import casadi as ca
 import numpy as np
 import pytest
+
 from softpinn.symbolic.smooth import SWITCH, cosc, sinc
 
 s = ca.SX.sym("s")
@@ -59,6 +60,7 @@ def test_numeric_arguments():
 def test_jet_values_and_derivatives_match_high_precision():
     """The jet's closed forms and series (cosc, sinc and two s-derivatives) against mpmath."""
     import mpmath
+
     from softpinn.symbolic.smooth import JET_SWITCH, Jet
 
     jet = Jet()

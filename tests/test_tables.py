@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from softpinn.symbolic import TrueModel
 
 # the package ships a copy of ../shared/paper/tables.json (tests/test_report_tables.py checks

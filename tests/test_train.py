@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, tiny_model_config
+
 from softpinn.learn import checkpoint as ckpt
 from softpinn.learn.data import load_dataset
 from softpinn.learn.errors import UserError

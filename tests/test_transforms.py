@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.transforms import (
     TRANSFORMS,
