@@ -1,0 +1,253 @@
+"""``export_run``: a trained run directory -> CasADi Functions, generated C and metadata on disk.
+
+The output directory holds
+
+* ``model.casadi`` (the Function ``qdd`` with inputs ``q``, ``qd``, ``u``) and one
+  ``<name>.casadi`` per Function (``qdd``, ``field``, ``step``, and for physics models ``M``,
+  ``M_inv``, ``G``, ``D``, ``A``); load any of them with ``casadi.Function.load``;
+* ``model.c`` and ``model.h``: the same Functions as C (CasADi's code generator, one C function
+  per name with the usual ``<name>_work``/``<name>_n_in``... companions), and ``model.so``, that C
+  compiled through the project's code cache (:func:`softpinn.symbolic.codegen.compile_functions`;
+  absent without a C compiler);
+* ``model.json``: kind, sizes, state and coordinate names, units, the training data and
+  configuration, the integrator of ``step``, a checksum of the run's files, the versions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..errors import UserError
+from .dynamics import export_functions
+from .params import model_params
+
+__all__ = ["export_run", "ExportResult", "FORMAT", "FORMAT_VERSION", "load_exported"]
+
+FORMAT = "softpinn-export"
+FORMAT_VERSION = 1
+_UNITS = {"dx": "m", "dy": "m", "dL": "m", "theta": "rad", "phi": "rad"}
+
+
+class ExportResult(dict):
+    """What :func:`export_run` returns: the metadata written to ``model.json`` (a dict), plus
+    ``functions`` (the exported Functions, symbolic) on the attribute of that name."""
+
+    functions: dict
+
+
+def _run_info(run: Path) -> dict:
+    if not run.is_dir():
+        raise UserError(f"RUN {run}: not a softpinn run directory (no such directory)")
+    path = run / "config.json"
+    if not path.is_file():
+        raise UserError(f"RUN {run}: not a softpinn run directory (no config.json)")
+    try:
+        info = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise UserError(f"RUN {run}: config.json cannot be read ({exc})") from None
+    if not isinstance(info, dict) or info.get("format") is None or "model" not in info:
+        raise UserError(f"RUN {run}: not a softpinn run directory (config.json has no model)")
+    return info
+
+
+def _select_members(run: Path, info: dict, member, mean: bool) -> list[int | None]:
+    """Which seeds to load: one (``member`` or the best), or all of them (``mean``)."""
+    if member is not None and mean:
+        raise UserError("--member and --mean exclude each other; give one of them")
+    if member is not None and (isinstance(member, bool) or not isinstance(member, int)):
+        raise UserError(f"--member must be an integer seed, got {member!r}")
+    seeds = info.get("seeds") if "members" in info else [info.get("seed")]
+    if member is not None and member not in seeds:
+        what = "ensemble" if "members" in info else "single-model run"
+        raise UserError(f"--member {member}: run {run} has no member with that seed "
+                        f"({what}, seeds {seeds})")
+    if mean:
+        return list(seeds) if "members" in info else [None]
+    return [member] if "members" in info else [None]
+
+
+def _prepare_out(out: Path, force: bool) -> None:
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise UserError(f"--out {out}: directory exists and is not empty; pass --force to "
+                        "overwrite it")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".probe-", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    for old in [*out.glob("*.casadi"), *(out / f"model.{e}" for e in ("c", "h", "so", "json"))]:
+        if old.is_file():  # --force: no file of an earlier export is left behind
+            old.unlink()
+
+
+def _checksum(run_dirs: list[Path]) -> str:
+    """SHA-256 over each loaded member's config.json and model.eqx (in load order)."""
+    h = hashlib.sha256()
+    for d in run_dirs:
+        for name in ("config.json", "model.eqx"):
+            h.update(f"{name}\0".encode())
+            h.update((d / name).read_bytes())
+    return h.hexdigest()
+
+
+def _dataset_meta(info: dict, run: Path) -> dict | None:
+    """The ``meta`` block of the run's dataset file, when that file can still be found."""
+    path = (info.get("dataset") or {}).get("path")
+    if not path:
+        return None
+    for cand in (Path(path), run / path):
+        if cand.is_file():
+            try:
+                with np.load(cand, allow_pickle=False) as z:
+                    return json.loads(str(z["meta"].item()))
+            except (OSError, KeyError, ValueError):
+                return None
+    return None
+
+
+def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dict:
+    coords = (meta or {}).get("coordinates")
+    if not (isinstance(coords, list) and len(coords) == n):
+        coords = [f"q{i + 1}" for i in range(n)]
+    second = "p" if state_kind == "momentum" else "qd"
+    units = {}
+    for c in coords:
+        base = c.rstrip("0123456789")
+        units[c] = _UNITS.get(base)
+    return {
+        "coordinates": coords,
+        "state": coords + [f"{second}_{c}" for c in coords],
+        "inputs": [f"u{j + 1}" for j in range(m)],
+        "units": {
+            "time": "s",
+            "coordinates": units,
+            "velocities": {c: (f"{u}/s" if u else None) for c, u in units.items()},
+            "inputs": "as in the training data",
+            "note": "null: unit not known from the training data",
+        },
+    }
+
+
+def _write_c(fns: dict, out: Path, compiler) -> dict:
+    """model.c + model.h (CasADi code generator) and model.so from the project's code cache."""
+    from softpinn.symbolic.codegen import compile_functions
+
+    cg = ca.CodeGenerator("model.c", {"with_header": True, "casadi_real": "double"})
+    for key in sorted(fns):
+        cg.add(fns[key])
+    cg.generate(str(out) + os.sep)
+    built = compile_functions(fns, compiler=compiler)
+    library = None
+    if built.compiled and built.library is not None:
+        shutil.copyfile(built.library, out / "model.so")
+        library = "model.so"
+    return {
+        "source": "model.c",
+        "header": "model.h",
+        "library": library,
+        "cache_key": built.key or None,
+        "from_cache": built.from_cache,
+        "compiler": built.compiler,
+        "flags": list(built.flags),
+        "symbols": sorted(f.name() for f in fns.values()),
+        "calling": "CasADi generated-code API: <name>(arg, res, iw, w, mem) with work sizes from "
+                   "<name>_work(&sz_arg, &sz_res, &sz_iw, &sz_w); see model.h",
+    }
+
+
+def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = False,
+               force: bool = False, compiler=None) -> ExportResult:
+    """Export a trained run (one member, the best member, or the ensemble mean) to ``out_dir``.
+
+    ``member``: the seed of an ensemble member (default: the best member, as ``load_run``);
+    ``mean``: the mean of all members' vector fields. ``force`` overwrites a non-empty
+    ``out_dir``. ``compiler``: the C compiler (default: ``$CC``, gcc, cc). Returns the metadata
+    written to ``model.json`` (with the symbolic Functions on ``.functions``).
+    """
+    from softpinn.learn import load_run
+
+    run, out = Path(run_dir), Path(out_dir)
+    info = _run_info(run)
+    seeds = _select_members(run, info, member, mean)
+    loaded = [load_run(run, member=s) for s in seeds]
+    train_cfg = loaded[0].train_config
+    params = [model_params(r.model) for r in loaded]
+    fns = export_functions(params, substeps=train_cfg.substeps, input_hold=train_cfg.input_hold)
+    _prepare_out(out, force)
+    fns["qdd"].save(str(out / "model.casadi"))
+    for key, fn in fns.items():
+        fn.save(str(out / f"{key}.casadi"))
+    c_info = _write_c(fns, out, compiler)
+
+    first = params[0]
+    n, m = first["n"], first["m"]
+    meta = _dataset_meta(info, run)
+    top = loaded[0].info
+    from softpinn import __version__
+
+    result = ExportResult({
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "softpinn": __version__,
+        "casadi": ca.__version__,
+        "kind": first["kind"],
+        "state_kind": first["state_kind"],
+        "n": n,
+        "m": m,
+        "dtype_trained": loaded[0].model_config.dtype,
+        **_names(n, m, first["kind"], first["state_kind"], meta),
+        "ensemble": {
+            "mode": "mean" if mean else "member",
+            "seeds": [r.seed for r in loaded],
+            "all_seeds": info.get("seeds", [info.get("seed")]),
+        },
+        "step": {"method": "rk4", "substeps": train_cfg.substeps,
+                 "input_hold": train_cfg.input_hold},
+        "run": {
+            "path": str(run.absolute()),
+            "members": [str(r.run_dir.absolute()) for r in loaded],
+            "sha256": _checksum([r.run_dir for r in loaded]),
+        },
+        "training": {
+            "dataset": top.get("dataset"),
+            "data_spec": (meta or {}).get("spec", {}).get("name") if meta else None,
+            "split": top.get("split"),
+            "pairs": top.get("pairs"),
+            "model": top.get("model"),
+            "train": top.get("train"),
+        },
+        "functions": {
+            key: {"name": fn.name(), "inputs": list(fn.name_in()),
+                  "outputs": list(fn.name_out()), "file": f"{key}.casadi"}
+            for key, fn in fns.items()
+        },
+        "model_file": {"file": "model.casadi", "function": "qdd"},
+        "c": c_info,
+    })
+    tmp = out / ".model.json.tmp"
+    tmp.write_text(json.dumps(result, indent=1))
+    os.replace(tmp, out / "model.json")
+    result.functions = fns
+    return result
+
+
+def load_exported(out_dir) -> dict[str, ca.Function]:
+    """The Functions of an export directory, by name (``casadi.Function.load`` of each file)."""
+    out = Path(out_dir)
+    meta_path = out / "model.json"
+    if not meta_path.is_file():
+        raise UserError(f"{out}: not a softpinn export directory (no model.json)")
+    meta = json.loads(meta_path.read_text())
+    return {k: ca.Function.load(str(out / v["file"])) for k, v in meta["functions"].items()}
