@@ -126,6 +126,11 @@ class Program:
         """Evaluate at one point: ``args[i]`` holds input i's nonzeros (1-D, length
         ``nnz_in[i]``, column-major as CasADi); returns the dense outputs (one array each,
         shaped (rows,) for a column, (rows, cols) otherwise)."""
+        outs, dtype = self.nonzeros(*args)
+        return tuple(self._dense(j, vals, dtype) for j, vals in enumerate(outs))
+
+    def nonzeros(self, *args) -> tuple[list[list], object]:
+        """The outputs' nonzeros (a list of scalars per output) and the working dtype."""
         if len(args) != self.n_in:
             raise TranslationError(f"{self.name}: expected {self.n_in} inputs "
                                    f"{self.name_in}, got {len(args)}")
@@ -164,7 +169,7 @@ class Program:
                 w[o[0]] = f(w[i[0]] == 0)
             else:  # OP_IF_ELSE_ZERO
                 w[o[0]] = jnp.where(w[i[0]] != 0, w[i[1]], zero)
-        return tuple(self._dense(j, vals, dtype) for j, vals in enumerate(outs))
+        return outs, dtype
 
     def _dense(self, j: int, vals: list, dtype):
         sp = self.sparsity_out[j]
