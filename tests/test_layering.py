@@ -128,3 +128,19 @@ def test_no_import_cycles():
         if m not in state:
             visit(m)
     assert not cycles, "import cycles: " + "; ".join(" -> ".join(c) for c in cycles)
+
+
+def test_every_subpackage_is_installed():
+    """Every folder of the three subpackages with an ``__init__.py`` is listed in pyproject's
+    ``packages`` (the editable install finds unlisted ones; a wheel would silently lack them)."""
+    import tomllib
+
+    listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+                 ["packages"])
+    found = {"softpinn"}
+    for pkg in ("symbolic", "learn", "bridge"):
+        for init in (ROOT / pkg).rglob("__init__.py"):
+            rel = init.parent.relative_to(ROOT).parts
+            found.add(".".join(("softpinn", *rel)))
+    assert found - listed == set(), f"not in pyproject packages: {sorted(found - listed)}"
+    assert listed - found == set(), f"listed but missing: {sorted(listed - found)}"
