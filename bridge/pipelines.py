@@ -479,7 +479,8 @@ def reproduce(
     results["stage_seconds"] = {k: v + credit.get(k, 0.0) for k, v in stages.seconds.items()}
     from .report import write_task_report
 
-    report = write_task_report(spec, plan, results, out, seconds=seconds)
+    report = write_task_report(spec, plan, results, out, seconds=seconds,
+                               machine=machine_description())
     _write_json(out / "results.json", {
         "task": plan.task, "quick": plan.quick, "seconds": seconds,
         "machine": machine_description(), "results": results,

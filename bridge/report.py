@@ -58,10 +58,10 @@ def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
     }
 
 
-def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -> Path:
-    """Write ``out/report.md`` (and the figures it shows) for one task run."""
-    from .pipelines import machine_description
-
+def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
+                      machine: str) -> Path:
+    """Write ``out/report.md`` (and the figures it shows) for one task run; ``machine`` names
+    the computer it ran on (the caller's description)."""
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -70,7 +70,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float) -
         "",
         f"`softpinn reproduce {plan.task}{' --quick' if plan.quick else ''}` "
         f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); "
-        f"wall time {seconds:.0f} s on {machine_description()}.",
+        f"wall time {seconds:.0f} s on {machine}.",
         "",
         "Errors as in Table III: train and test error are the one-step loss of eq. 8 (eq. 9 "
         "for Hamiltonian models) with λ = 1 per pair, mean ± std over pairs; the prediction "
