@@ -20,7 +20,8 @@ run loses at most the stage it was in (training itself resumes from its last che
 
 ``quick=True`` runs the same pipeline on small settings (few short trajectories, small nets,
 few epochs) in a minute or two; tests and notebooks use it. Full runs use the paper's network
-sizes and data, with our own, shorter training budgets (:data:`FULL_BUDGETS`).
+sizes and data, with our own, shorter training budgets (the recipe's ``[training.full.*]``
+tables, :mod:`symbolic.recipe`).
 """
 
 from __future__ import annotations
@@ -43,106 +44,13 @@ from .errors import UserError
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 PHYSICS_KINDS = ("lagrangian", "hamiltonian")
 
-#: Our training budgets for full runs (the paper's epochs are in the presets' [training]
-#: tables and in Table III; we converge faster rather than train longer): epochs of AdamW,
-#: then L-BFGS iterations on the full training set.
-FULL_BUDGETS: dict[str, dict[str, dict[str, float]]] = {
-    "task1": {"lagrangian": {"epochs": 600}, "blackbox": {"epochs": 300}},
-    # task2's Lagrangian network: L-BFGS resumed after its 600 AdamW epochs took its test loss
-    # from 1.25e-5 to 2.8e-6 in 550 iterations and 2.0e-6 in 1000 (paper 3.05e-6; about 1 s
-    # each on one core, two RK4 sub-steps per sample)
-    "task2": {"lagrangian": {"epochs": 600, "lbfgs": 1000}, "blackbox": {"epochs": 300}},
-    # task3's Hamiltonian network: 200 L-BFGS iterations after AdamW (best parameters by test
-    # loss, as for every epoch) took its 5 s prediction error on seeds 0/1/2 from 4.3e-6 /
-    # 1.1e-5 / 2.6e-6 to 2.5e-6 / 9.0e-6 / 1.4e-6 (mean 5.9e-6 -> 4.3e-6; paper 5.21e-6) and
-    # its test loss down on every seed, for about 6 min per seed (measured before trajectory 1
-    # started at Table VII's [0.1, 0.1]; on those data the three seeds give 4.4e-6 / 1.1e-5 /
-    # 1.6e-6, every matrix within 0.67 % at the seven q)
-    "task3": {"hamiltonian": {"epochs": 400, "lbfgs": 200}, "blackbox": {"epochs": 400}},
-    # task4's Hamiltonian network: 1000 L-BFGS iterations after AdamW took its test loss from
-    # 7.2e-9 to 3.0e-9 and its 5 s prediction error from 2.2e-4 to 1.0e-4 (about 7 min; the
-    # full run: 8.6e-5); its matrices barely moved (sampled q: M⁻¹ 2.0 -> 1.7 %, D 5.7 ->
-    # 6.2 %, G 4.9 -> 4.2 %, A 9.8 -> 9.4 %), and 200 iterations gave 2.1e-4
-    # task4's Lagrangian network: L-BFGS resumed after its 400 AdamW epochs took its test loss
-    # from 2.3e-4 to 5.0e-5 in 1000 iterations (paper 6.51e-5), 3.1e-5 in 2000 and 3.0e-5 in
-    # 3000 (about 0.4 s each on one core)
-    "task4": {
-        "lagrangian": {"epochs": 400, "lbfgs": 2000},
-        "hamiltonian": {"epochs": 300, "lbfgs": 1000},
-        "blackbox": {"epochs": 150},
-    },
-    # task5's Lagrangian network at lr 1e-2 (on eq. 8 and the 1000 Hz data: a test loss of
-    # 1.11e-6 after 15 epochs where lr 2e-3 reached 1.42e-6); on eq. 10 (LOSSES) an epoch
-    # costs about a tenth of an RK4 one, and 200 take 2-3 min per data set
-    # equal_steps: the 50 Hz data hold half the pairs; at 200 epochs one of its four 10 s
-    # rollouts blew up, at 375 (as many steps as the others) all four stayed within 0.021
-    # (mean 0.0077, full run)
-    "task5": {"lagrangian": {"epochs": 200, "lr": 1e-2, "equal_steps": True},
-              "blackbox": {"epochs": 40}},
-}
-
-#: Minibatch size of full runs. The paper used 500-1200; on the mass-spring-damper, batches of
-#: 64 with a cosine schedule reached a test loss of 1e-8 in 150 epochs (60 s) where batches of
-#: 1000 with an L-BFGS finish stalled at 7e-5 (benchmarks/bench_train.py measures the same).
-FULL_BATCH = {"task5": 256}
-DEFAULT_BATCH = 64
-
 #: The paper's smallest networks (4 wide for Task 1) did not reach its losses in our budgets;
 #: mass and potential networks get at least this width (Table III's sizes are in the report).
 MIN_WIDTH = 32
 
-#: How every model of a task is integrated over one data step, in training and in prediction
-#: (learn.TrainConfig's ``substeps`` and ``input_hold``). The true model integrated the same way
-#: sets a floor under any one-step loss (measured on the full data, velocity form):
-#: task2's 0.08 s step leaves RK4 an error of 2.1e-4 (about its Lagrangian's whole test loss),
-#: 2.2e-7 with 2 sub-steps and 5.4e-10 with 4; the sinusoidal inputs of tasks 3 and 4, held
-#: constant over a step, leave 9.4e-4 and 9.1e-5, and interpolated linearly 2.1e-7 and 1.2e-9.
-#: A model trained above such a floor learns the integrator's error as physics.
-INTEGRATION: dict[str, dict[str, Any]] = {
-    "task2": {"substeps": 2},
-    "task3": {"input_hold": "linear"},
-    "task4": {"input_hold": "linear"},
-    "task5": {"input_hold": "linear"},
-}
-
-#: The loss a task's model trains on, where not the paper's one-step RK4 loss (eqs. 8-9).
-#: Task 5's Lagrangian networks trained on eq. 8 learned its accelerations (test losses 2-20x
-#: below the no-forces loss) but every one had a slow unstable direction (largest real part of
-#: the linearised dynamics +0.04 to +0.43, true -0.11) and all their 10 s rollouts blew up: the
-#: one-step loss barely constrains directions the data do not excite. On eq. 10 with q̈ from
-#: central differences of the recorded velocities (the paper's remedy, Section VI-A), the 100 Hz
-#: network kept every true time scale and its 10 s rollout error was 0.009 (eq. 8: inf).
-#: Task 3's Hamiltonian network trains on eq. 9 with λ = 0.1. At λ = 1 the momentum part held
-#: 92 % of its test loss (5.0e-8; q 4.4e-9), so the loss barely weighed M⁻¹, whose main trace
-#: is in q₁ = q₀ + h M⁻¹ p + ..., and M⁻¹ came out loosest where the data are sparse (Table
-#: VII's [1.5, 1.0]: 1.71 %). At λ = 0.1 the two parts weigh about alike and, in the full run
-#: (AdamW alone; the L-BFGS finish of FULL_BUDGETS came later), M⁻¹ there is off by 0.34 %,
-#: every matrix at all seven q by at most 0.80 %, the prediction error 4.6e-6 -> 4.3e-6. Over
-#: three seeds every matrix stays within 1 % at six of the seven q, G at [0.1, 0.1] is
-#: 1.17 ± 0.69 % off (then no training trajectory started there; see the task3 preset) and
-#: the prediction error 5.9e-6 ± 3.5e-6 (--seeds 3); at λ = 1 a second seed put D at
-#: [1.5, 1.0] 4.5 % off. Reports show every model's errors at λ = 1
-#: (REPORT_WEIGHT).
-LOSSES: dict[str, dict[str, dict[str, Any]]] = {
-    "task3": {"hamiltonian": {"loss_weight": 0.1}},
-    "task5": {"lagrangian": {"loss": "accel", "accel_labels": "differences"}},
-}
-
 #: λ of the one-step errors a report shows (train, test, floor, no forces): the same for every
 #: model of a task whatever λ it trained with, so the columns compare.
 REPORT_WEIGHT = 1.0
-
-#: The longest RK4 step [s] a task's data may be stepped with: a variant whose data step is
-#: longer is stepped with ceil(step / MAX_STEP) sub-steps. Task 5's second segment has a fast
-#: overdamped mode (eigenvalue about -288 1/s at the hanging equilibrium): RK4 is stable only for
-#: steps below 2.79 / 288 = 9.7 ms, so the true model itself blows up at 50 Hz (floor 4.5e-3)
-#: and sits at the edge at 100 Hz; 7.5 ms gives 3 sub-steps at 50 Hz and 2 at 100 Hz.
-MAX_STEP: dict[str, float] = {"task5": 0.0075}
-
-#: Step sizes other than the data's for the rollouts of Figs. 24-25 (task1: 0.1 s, task2:
-#: 0.15 s, task3: 0.1 s as in Figs. 25, 31, 37), and a multiple of the data step elsewhere.
-OTHER_DT = {"task1": 0.1, "task2": 0.15, "task3": 0.1}
-
 
 @dataclass(frozen=True)
 class ReproduceConfig:
@@ -204,42 +112,45 @@ class Plan:
         return json.loads(json.dumps(dataclasses.asdict(self), default=list))
 
 
-def _size(training: Mapping[str, Any], kind: str, key: str, default):
-    value = dict(training.get(kind, {})).get(key, default)
-    return tuple(int(v) for v in value)
-
-
 def make_plan(spec, config: ReproduceConfig) -> Plan:
-    """The plan of a task run from its preset and the call's settings."""
+    """The plan of a task run from its spec's recipe (``[training]``, :mod:`symbolic.recipe`)
+    and ``[data]`` tables, and the call's settings. A ``[data]`` table with ``rates`` gives one
+    variant per rate (the black box on ``blackbox_rates`` only), and with ``fixed_step_dt`` one
+    more on fixed-step RK4 data; otherwise one variant on the data as simulated."""
     task, quick = config.task, config.quick
-    training = dict(spec.training)
+    recipe = spec.recipe
     data = dict(spec.data)
-    physics = tuple(training.get("physics", ["lagrangian"]))
-    horizon = float(training.get("prediction_horizon", 5.0))
-    budgets = FULL_BUDGETS[task]
+    physics = recipe.physics
+    horizon = recipe.prediction_horizon
     fixed_step = None
     if quick:
         data.update(train_trajectories=3, test_trajectories=2, blackbox_train_trajectories=4)
-        data["duration"] = 4.0 if task != "task5" else 2.0
+        data["duration"] = recipe.quick["duration"]
         data.pop("trajectories", None)
         horizon = min(horizon, data["duration"] * 0.6)
-    if task == "task5":
-        rates = [float(r) for r in data.get("rates", [50.0, 100.0, 1000.0])]
-        if quick:
-            rates = [50.0, 100.0]
-            data["rates"] = rates
-        fixed_step = {
-            "dt": float(data.get("fixed_step_dt", 2e-4)),
-            "rate": 1000.0 if quick else 1.0 / float(data.get("fixed_step_dt", 2e-4)),
-            "duration": 1.0 if quick else 10.0,
-            "trajectories": 3 if quick else int(data.get("fixed_step_trajectories", 5)),
-        }
-        if quick:
-            data["fixed_step_train_trajectories"] = 2
-        variants = [Variant("fixed_0.0002s", "rk4", None, ("lagrangian", "blackbox"))]
-        for r in rates:
-            kinds = ("lagrangian", "blackbox") if r == 100.0 else ("lagrangian",)
-            sub = math.ceil(1.0 / r / MAX_STEP[task] - 1e-9) if task in MAX_STEP else None
+        if "rates" in recipe.quick:
+            data["rates"] = list(recipe.quick["rates"])
+        if "fixed_step_train_trajectories" in recipe.quick:
+            data["fixed_step_train_trajectories"] = recipe.quick["fixed_step_train_trajectories"]
+    if "rates" in data:
+        variants = []
+        if "fixed_step_dt" in data:
+            dt = float(data["fixed_step_dt"])
+            q = recipe.quick if quick else {}
+            fixed_step = {
+                "dt": dt,
+                "rate": float(q.get("fixed_step_rate", data.get("fixed_step_rate", 1.0 / dt))),
+                "duration": float(q.get("fixed_step_duration", data["duration"] if quick
+                                        else min(10.0, float(data["duration"])))),
+                "trajectories": int(q.get("fixed_step_trajectories",
+                                          data.get("fixed_step_trajectories", 5))),
+            }
+            variants.append(Variant(f"fixed_{dt:g}s", "rk4", None, physics + ("blackbox",)))
+        black = recipe.blackbox_rates
+        for r in (float(r) for r in data["rates"]):
+            kinds = physics + (("blackbox",) if black is None or r in black else ())
+            sub = (math.ceil(1.0 / r / recipe.max_step - 1e-9)
+                   if recipe.max_step is not None else None)
             variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds,
                                     sub if sub and sub > 1 else None))
         variants = tuple(variants)
@@ -247,30 +158,31 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         variants = (Variant("main", "cvodes", None, physics + ("blackbox",)),)
     models: dict[str, dict[str, Any]] = {}
     for kind in physics + ("blackbox",):
-        budget = budgets.get(kind, {"epochs": 1000})
+        budget = recipe.full.get(kind, {})
+        net = kind if kind != "blackbox" else physics[0]
         if quick:
             m = dict(
                 mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2), hidden=(32, 2),
-                epochs=300 if task != "task5" else 60, lbfgs=0, lr=3e-3,
+                epochs=int(recipe.quick["epochs"]), lbfgs=0, lr=3e-3,
             )
         else:
             m = dict(
-                mass=_size(training, kind if kind != "blackbox" else physics[0], "mass", (64, 3)),
-                potential=_size(training, kind if kind != "blackbox" else physics[0],
-                                "potential", (64, 3)),
-                damping=_size(training, kind if kind != "blackbox" else physics[0], "damping",
-                              (16, 2)),
-                input=_size(training, kind if kind != "blackbox" else physics[0], "input",
-                            (16, 2)),
-                hidden=_size(training, "blackbox", "hidden", (128, 3)),
-                epochs=int(budget["epochs"]), lbfgs=int(budget.get("lbfgs", 0)),
+                mass=recipe.network(net, "mass", (64, 3)),
+                potential=recipe.network(net, "potential", (64, 3)),
+                damping=recipe.network(net, "damping", (16, 2)),
+                input=recipe.network(net, "input", (16, 2)),
+                hidden=recipe.network("blackbox", "hidden", (128, 3)),
+                epochs=int(budget.get("epochs", 1000)), lbfgs=int(budget.get("lbfgs_steps", 0)),
                 lr=float(budget.get("lr", 2e-3)),
             )
-            for net in ("mass", "potential"):
-                m[net] = (max(m[net][0], MIN_WIDTH), m[net][1])
-        m["paper_epochs"] = int(dict(training.get(kind, {})).get("epochs", 0)) or None
-        m.update({"substeps": 1, "input_hold": "constant"} | INTEGRATION.get(task, {}))
-        m.update(LOSSES.get(task, {}).get(kind, {}))  # none: eq. 8/9 (TrainConfig's default)
+            for name in ("mass", "potential"):
+                m[name] = (max(m[name][0], MIN_WIDTH), m[name][1])
+        m["paper_epochs"] = recipe.network(kind, "epochs")
+        m.update(substeps=recipe.substeps, input_hold=recipe.input_hold)
+        # the loss a network learns from (eq. 8/9 unless the recipe says otherwise)
+        m.update({k: recipe.networks.get(kind, {})[k] for k in ("loss", "loss_weight",
+                                                                "accel_labels")
+                  if k in recipe.networks.get(kind, {})})
         if kind == "hamiltonian":
             m["mass_init"] = "data"  # M⁻¹'s initial diagonal from the data (learn.mass_scale)
         m["equal_steps"] = bool(budget.get("equal_steps", False)) and not quick
@@ -280,7 +192,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         if config.lbfgs_steps is not None:
             m["lbfgs"] = config.lbfgs_steps
         models[kind] = m
-    other_dt = OTHER_DT.get(task)
+    other_dt = recipe.other_dt
     if other_dt is None:
         rate = float(data.get("rate", max(data.get("rates", [100.0]))))
         other_dt = 2.0 / rate
@@ -291,7 +203,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         fixed_step=fixed_step,
         variants=variants,
         models=models,
-        batch_size=FULL_BATCH.get(task, DEFAULT_BATCH),
+        batch_size=recipe.batch_size,
         horizon=horizon,
         long_horizon=min(3 * horizon, float(data["duration"])),
         other_dt=other_dt,

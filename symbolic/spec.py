@@ -1,4 +1,4 @@
-"""Model specs: the TOML description of a robot (``../shared/DESIGN.md``, Model spec).
+"""Model specs: the TOML description of a robot (``docs/spec.md``).
 
 A spec describes the physics of one of four kinds of system:
 
@@ -8,10 +8,9 @@ A spec describes the physics of one of four kinds of system:
 * ``mass-spring-damper``: a chain of masses (eq. 25);
 * ``double-pendulum``: the point-mass double pendulum (eq. 26).
 
-It may also carry a ``[data]`` table (how the paper generated its data for the task) and a
-``[training]`` table (the paper's network sizes and budgets). Those two tables are kept as plain
-dictionaries here and validated by their consumers (:mod:`symbolic.datasets` and the bridge
-pipelines), which refuse unknown keys.
+It may also carry a ``[data]`` table (how to generate data for it; validated by
+:mod:`symbolic.datasets`) and a ``[training]`` table (the task recipe, validated here when the
+spec loads: :mod:`symbolic.recipe`).
 
 ``load_spec`` accepts a preset name (``task1`` ... ``task5``) or a path to a ``.toml`` file, and
 refuses a bad spec with a :class:`SpecError` naming the file and the field.
@@ -29,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import UserError
+from .recipe import Recipe, RecipeError, parse_recipe
 
 KINDS = ("spatial-pcc", "planar-pcc", "mass-spring-damper", "double-pendulum")
 PARAMETERIZATIONS = ("delta", "phi-theta")
@@ -116,6 +116,12 @@ class ModelSpec:
         if self.kind == "planar-pcc":
             return tuple(f"{c}{i + 1}" for i in range(len(self.segments)) for c in ("theta", "dL"))
         return tuple(f"q{i + 1}" for i in range(self.n))
+
+    @property
+    def recipe(self) -> Recipe:
+        """The ``[training]`` table as a typed :class:`symbolic.recipe.Recipe` (validated when
+        the spec was loaded)."""
+        return parse_recipe(self.training, self.n)
 
     def physics_dict(self) -> dict[str, Any]:
         """The physical part of the spec as plain JSON-able data (what the EOM depend on)."""
@@ -247,7 +253,12 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
         spec = ModelSpec(masses=masses, lengths=lengths, g=g, joint_damping=damping,
                          actuation="none", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"), default="none")
-    return dataclasses.replace(spec, actuation=actuation)
+    spec = dataclasses.replace(spec, actuation=actuation)
+    try:
+        parse_recipe(training, spec.n)
+    except RecipeError as e:
+        v.fail(e.where, e.message)
+    return spec
 
 
 class _Validator:

@@ -1,0 +1,131 @@
+"""The task recipe (a spec's [training] table): typed, validated when the spec loads, and the
+only source of the pipeline's per-task settings."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from softpinn.bridge.pipelines import ReproduceConfig, make_plan
+from softpinn.learn.train import TrainConfig
+from softpinn.symbolic import SpecError, load_spec
+from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, Recipe
+from softpinn.symbolic.spec import preset_path
+
+TASKS = ("task1", "task2", "task3", "task4", "task5")
+
+
+def _spec_with(tmp_path, training: str, base: str = "task1"):
+    text = preset_path(base).read_text()
+    head = text[: text.index("[training]")]
+    path = tmp_path / "arm.toml"
+    path.write_text(head + training)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("training", "field", "message"),
+    [
+        ("[training]\nbacth_size = 64\n", "training.bacth_size", "unknown key"),
+        ("[training]\n[training.lagrangian]\nepohcs = 10\n", "training.lagrangian.epohcs",
+         "unknown key"),
+        ("[training]\n[training.full.lagrangian]\nepohcs = 10\n",
+         "training.full.lagrangian.epohcs", "unknown key"),
+        ("[training]\n[training.full.lagrnagian]\nepochs = 10\n", "training.full.lagrnagian",
+         "unknown key"),
+        ("[training]\nbatch_size = \"64\"\n", "training.batch_size", "expected an integer"),
+        ("[training]\nbatch_size = 0\n", "training.batch_size", "at least 1"),
+        ("[training]\nprediction_horizon = nan\n", "training.prediction_horizon", "finite"),
+        ("[training]\nprediction_horizon = -1.0\n", "training.prediction_horizon", "positive"),
+        ("[training]\nphysics = [\"lagrange\"]\n", "training.physics", "lagrangian"),
+        ("[training]\nmatrix_q = [[0.1, 0.2, 0.3]]\n", r"training.matrix_q\[0\]", "2 numbers"),
+        ("[training]\ninput_hold = \"cubic\"\n", "training.input_hold", "constant, linear"),
+        ("[training]\n[training.lagrangian]\nmass = [30]\n", "training.lagrangian.mass",
+         "width, depth"),
+        ("[training]\n[training.lagrangian]\nloss = \"l2\"\n", "training.lagrangian.loss",
+         "pair, accel, rollout"),
+        ("[training]\n[training.full.lagrangian]\nlr = inf\n", "training.full.lagrangian.lr",
+         "finite"),
+        ("[training]\n[training.full.lagrangian]\nequal_steps = 1\n",
+         "training.full.lagrangian.equal_steps", "true or false"),
+        ("[training]\n[training.quick]\nepochs = 2.5\n", "training.quick.epochs",
+         "expected an integer"),
+    ],
+)
+def test_bad_training_table_is_refused_naming_file_and_field(tmp_path, training, field,
+                                                             message):
+    path = _spec_with(tmp_path, training)
+    with pytest.raises(SpecError, match=rf"arm\.toml: field '{field}': .*{message}"):
+        load_spec(path)
+
+
+def test_bad_training_table_is_one_line_at_the_cli(tmp_path, capsys):
+    from softpinn.bridge.cli import main
+
+    path = _spec_with(tmp_path, "[training]\nbacth_size = 64\n")
+    assert main(["matrices", str(path), "--q", "0", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "training.bacth_size" in err and "unknown key" in err
+
+
+@pytest.mark.parametrize("task", TASKS)
+def test_presets_carry_a_valid_recipe(task):
+    recipe = load_spec(task).recipe
+    assert isinstance(recipe, Recipe)
+    assert recipe.full, f"{task}: no full-run budget"
+    assert math.isfinite(recipe.prediction_horizon) and recipe.prediction_horizon > 0
+    assert recipe.batch_size >= 1 and recipe.physics
+
+
+def test_recipe_training_keys_are_train_config_fields():
+    """The recipe names training settings as learn's TrainConfig does (no second default)."""
+    fields = {f.name for f in dataclasses.fields(TrainConfig)}
+    pipeline_only = {"equal_steps"}  # a pipeline setting: epochs scaled to equal step counts
+    assert set(BUDGET_KEYS) - pipeline_only <= fields
+    assert set(LOSS_KEYS) <= fields
+
+
+def test_a_user_recipe_drives_the_plan(tmp_path):
+    path = _spec_with(tmp_path, """[training]
+physics = ["hamiltonian"]
+prediction_horizon = 1.5
+batch_size = 32
+substeps = 3
+[training.hamiltonian]
+mass = [40, 2]
+loss_weight = 0.5
+[training.full.hamiltonian]
+epochs = 77
+lbfgs_steps = 5
+[training.full.blackbox]
+epochs = 11
+[training.quick]
+epochs = 9
+duration = 3.0
+""")
+    spec = load_spec(path)
+    full = make_plan(spec, ReproduceConfig("task1"))
+    assert full.batch_size == 32 and full.horizon == 1.5
+    h = full.models["hamiltonian"]
+    assert (h["epochs"], h["lbfgs"], h["mass"], h["substeps"], h["loss_weight"]) == (
+        77, 5, (40, 2), 3, 0.5)
+    assert full.models["blackbox"]["epochs"] == 11
+    assert [v.models for v in full.variants] == [("hamiltonian", "blackbox")]
+    quick = make_plan(spec, ReproduceConfig("task1", quick=True))
+    assert quick.models["hamiltonian"]["epochs"] == 9 and quick.data["duration"] == 3.0
+    assert quick.models["hamiltonian"]["loss_weight"] == 0.5  # the loss holds in quick runs
+
+
+def test_task5_variants_come_from_its_data_and_recipe():
+    plan = make_plan(load_spec("task5"), ReproduceConfig("task5"))
+    assert [(v.name, v.models, v.substeps) for v in plan.variants] == [
+        ("fixed_0.0002s", ("lagrangian", "blackbox"), None),
+        ("50Hz", ("lagrangian",), 3),
+        ("100Hz", ("lagrangian", "blackbox"), 2),
+        ("1000Hz", ("lagrangian",), None),
+    ]
+    quick = make_plan(load_spec("task5"), ReproduceConfig("task5", quick=True))
+    assert [v.name for v in quick.variants] == ["fixed_0.0002s", "50Hz", "100Hz"]
+    assert quick.fixed_step == {"dt": 2e-4, "rate": 1000.0, "duration": 1.0, "trajectories": 3}
