@@ -33,9 +33,11 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
+from softpinn.learn.ensemble import MemberGroup  # noqa: E402
 from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
 from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
-from softpinn.learn.train import TrainConfig, _Group, _programs, train  # noqa: E402
+from softpinn.learn.programs import PROGRAMS  # noqa: E402
+from softpinn.learn.train import TrainConfig, train  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from datagen import make_dataset  # noqa: E402
@@ -68,8 +70,8 @@ def bench_step(kind, n, m, batch, width, depth, steps, dtype, repeats):
     )
     cfg = TrainConfig(model=mc, epochs=100, batch_size=batch, lr=1e-3)
     pairs = _random_pairs(n, m, batch * steps, jnp.dtype(dtype))
-    prog = _programs(cfg, pairs, pairs, batch * steps, batch)
-    g = _Group(prog, [0], Path(tempfile.gettempdir()) / "bench.eqx", {})
+    prog = PROGRAMS.get(cfg, pairs, pairs, batch * steps, batch)
+    g = MemberGroup(prog, [0], Path(tempfile.gettempdir()) / "bench.eqx", {})
     active = jnp.ones(1, bool)
     t = time.perf_counter()
     out = prog.epoch_fn(g.params, g.opt_state, g.keys, 0, active)
@@ -122,12 +124,12 @@ def bench_ensemble(kind, n, m, batch, width, depth, steps, K, repeats):
     )  # fmt: skip
     cfg = TrainConfig(model=mc, epochs=100, batch_size=batch, lr=1e-3)
     pairs = _random_pairs(n, m, batch * steps, jnp.float64)
-    prog = _programs(cfg, pairs, pairs, batch * steps, batch)
+    prog = PROGRAMS.get(cfg, pairs, pairs, batch * steps, batch)
     tmp = Path(tempfile.gettempdir()) / "bench.eqx"
     seeds = list(range(K))
 
-    seq_groups = [_Group(prog, [s], tmp, {}) for s in seeds]
-    vm_group = _Group(prog, seeds, tmp, {})
+    seq_groups = [MemberGroup(prog, [s], tmp, {}) for s in seeds]
+    vm_group = MemberGroup(prog, seeds, tmp, {})
     for g in [*seq_groups, vm_group]:  # compile / warm up
         _block(prog.epoch_fn(g.params, g.opt_state, g.keys, 0, jnp.ones(g.K, bool)))
     seq_t, vm_t = [], []

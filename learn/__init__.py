@@ -10,19 +10,26 @@ Core API::
     predict("runs/lnn", "data.npz", horizon=2.7)          # one-step and rollout errors
 """
 
+from .config import TrainConfig
 from .data import load_dataset
 from .errors import UserError
 from .integrate import rk4_step, rollout, step
 from .losses import Pairs, accel_loss, pair_errors, pair_loss, rollout_loss
 from .models import DynamicsModel, ModelConfig, make_model
 from .predict import evaluate, predict
-from .train import TrainConfig, load_ensemble, load_run, train
+from .programs import ProgramCache
+from .rundir import LoadedRun, load_ensemble, load_run
+from .train import TrainingDiverged, TrainResult, train
 
 __all__ = [
     "DynamicsModel",
     "ModelConfig",
+    "LoadedRun",
     "Pairs",
+    "ProgramCache",
     "TrainConfig",
+    "TrainResult",
+    "TrainingDiverged",
     "UserError",
     "accel_loss",
     "evaluate",

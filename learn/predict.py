@@ -297,7 +297,7 @@ def predict(
     trained on, else every trajectory), "test", "all", or a list of ids. The one-step error uses
     the run's loss settings (λ, sub-steps, input hold).
     """
-    from .train import load_run
+    from .rundir import load_run
 
     run = load_run(run_dir, member=member)
     cfg = run.model_config

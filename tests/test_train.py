@@ -19,8 +19,8 @@ from softpinn.learn.data import load_dataset
 from softpinn.learn.errors import UserError
 from softpinn.learn.models import make_model
 from softpinn.learn.predict import evaluate
+from softpinn.learn.programs import PROGRAMS
 from softpinn.learn.train import (
-    _PROGRAM_CACHE,
     TrainConfig,
     TrainingDiverged,
     load_ensemble,
@@ -194,10 +194,10 @@ def test_existing_run_dir_needs_force(msd, tmp_path):
     (out / "notes.txt").write_text("keep me")
     with pytest.raises(UserError, match="already exists and is not empty; use --force"):
         train(msd, cfg, out)
-    before = {id(p): p._epoch_fn._cache_size() for p in _PROGRAM_CACHE.values()}
+    before = {id(p): p._epoch_fn._cache_size() for p in PROGRAMS.entries.values()}
     train(msd, cfg, out, force=True)
     # a second run of an already-compiled configuration traces nothing new
-    after = {id(p): p._epoch_fn._cache_size() for p in _PROGRAM_CACHE.values()}
+    after = {id(p): p._epoch_fn._cache_size() for p in PROGRAMS.entries.values()}
     assert before == after and len(before) >= 1
     assert (out / "notes.txt").read_text() == "keep me"
     assert (out / "model.eqx").is_file() and (out / "loss.png").is_file()

@@ -1,0 +1,159 @@
+"""The settings of a training run: :class:`TrainConfig` (with the network's
+:class:`learn.models.ModelConfig`), validated where they enter.
+
+The loss is eq. 8 (velocity state), eq. 9 (momentum state) or eq. 10 (accelerations), see
+:mod:`learn.losses`; the optimizer is AdamW (Section III-B, "Model training") via optax.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from .data import ACCEL_LABELS
+from .errors import UserError
+from .models import ModelConfig
+
+FORMAT = "softpinn-run"
+FORMAT_VERSION = 1
+SCHEDULES = ("cosine", "exponential", "constant")
+LOSSES = ("pair", "accel", "rollout")
+ENSEMBLE_MODES = ("auto", "vmap", "sequential")
+
+
+class TrainingDiverged(UserError):
+    """The loss became NaN or inf; the last good checkpoint is kept."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Everything that decides a training run (with the dataset and the seed).
+
+    ``model``: the network (:class:`learn.models.ModelConfig`; its n, m must match the data).
+    ``epochs``: passes over the training pairs in minibatches of ``batch_size`` (clipped to the
+    number of pairs; the remainder of each shuffled epoch is dropped so shapes never change).
+    ``lr``: peak AdamW learning rate; ``schedule``: "cosine" (linear warmup over ``warmup`` of
+    all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
+    decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
+    ``clip_norm`` > 0 clips the global gradient norm.
+    ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
+    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only; q̈ labels as
+    ``accel_labels`` says: "recorded" in the file or "differences" of the velocities) or "rollout"
+    (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
+    first state of windows of consecutive samples of one trajectory; minibatches of windows).
+    ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
+    ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
+    where vmapping was measured slower; see benchmarks/bench_train.py).
+    ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (20%);
+    ``split_seed`` draws the split and the ``samples`` subset of training pairs (None: all).
+    ``patience``: stop a member after that many evaluations without a better test loss (None:
+    never); the saved model is the one with the best test loss. ``eval_every``: epochs between
+    test-loss evaluations. ``checkpoint_every``: epochs between checkpoints.
+    ``lbfgs_steps``: L-BFGS iterations on the full training set after AdamW (0: none), starting
+    from the best AdamW parameters, in calls of ``lbfgs_chunk`` iterations.
+    """
+
+    model: ModelConfig
+    epochs: int = 1000
+    batch_size: int = 1024
+    lr: float = 1e-3
+    schedule: str = "cosine"
+    warmup: float = 0.02
+    lr_final: float = 0.01
+    weight_decay: float = 1e-4
+    clip_norm: float = 0.0
+    loss: str = "pair"
+    loss_weight: float = 1.0
+    rollout_steps: int = 5
+    substeps: int = 1
+    input_hold: str = "constant"
+    accel_labels: str = "recorded"
+    seed: int = 0
+    seeds: int = 1
+    ensemble: str = "auto"
+    test_trajectories: tuple[int, ...] | int | float | None = None
+    split_seed: int = 0
+    samples: int | None = None
+    patience: int | None = None
+    eval_every: int = 1
+    checkpoint_every: int = 25
+    lbfgs_steps: int = 0
+    lbfgs_chunk: int = 10
+
+    def __post_init__(self):
+        if not isinstance(self.model, ModelConfig):
+            raise UserError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+        pos_int = (
+            "epochs",
+            "batch_size",
+            "substeps",
+            "seeds",
+            "eval_every",
+            "checkpoint_every",
+            "rollout_steps",
+        )
+        for name in pos_int + ("lbfgs_chunk",):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"--{name.replace('_', '-')} must be an integer >= 1, got {v!r}")
+        for name in ("lbfgs_steps", "seed", "split_seed"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise UserError(f"--{name.replace('_', '-')} must be an integer >= 0, got {v!r}")
+        if not (self.lr > 0 and math.isfinite(self.lr)):
+            raise UserError(f"--lr must be a positive number, got {self.lr!r}")
+        if not 0 <= self.warmup < 1:
+            raise UserError(f"warmup must be a fraction in [0, 1), got {self.warmup!r}")
+        if not 0 < self.lr_final <= 1:
+            raise UserError(f"lr_final must be in (0, 1], got {self.lr_final!r}")
+        if self.weight_decay < 0 or self.clip_norm < 0 or self.loss_weight < 0:
+            raise UserError("weight_decay, clip_norm and loss_weight must be >= 0")
+        for name, allowed in (
+            ("schedule", SCHEDULES),
+            ("loss", LOSSES),
+            ("ensemble", ENSEMBLE_MODES),
+            ("input_hold", ("constant", "linear")),
+            ("accel_labels", ACCEL_LABELS),
+        ):
+            if getattr(self, name) not in allowed:
+                raise UserError(
+                    f"--{name.replace('_', '-')} must be one of {list(allowed)}, "
+                    f"got {getattr(self, name)!r}"
+                )
+        if self.patience is not None and (not isinstance(self.patience, int) or self.patience < 1):
+            raise UserError(f"--patience must be an integer >= 1, got {self.patience!r}")
+        if self.samples is not None and (not isinstance(self.samples, int) or self.samples < 1):
+            raise UserError(f"--samples must be an integer >= 1, got {self.samples!r}")
+        if isinstance(self.test_trajectories, list):
+            object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
+        if self.accel_labels != "recorded" and self.loss != "accel":
+            raise UserError(
+                f"--accel-labels {self.accel_labels} is for --loss accel, not --loss {self.loss}"
+            )
+        if self.loss == "accel" and self.model.state_kind != "velocity":
+            raise UserError(
+                "--loss accel (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
+                f"a {self.model.kind} model uses the {self.model.state_kind} state"
+            )
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        d["model"] = self.model.to_dict()
+        if isinstance(d["test_trajectories"], tuple):
+            d["test_trajectories"] = list(d["test_trajectories"])
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> TrainConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise UserError(f"unknown train config key(s) {unknown}")
+        kw = dict(d)
+        kw["model"] = ModelConfig.from_dict(d["model"])
+        if isinstance(kw.get("test_trajectories"), list):
+            kw["test_trajectories"] = tuple(kw["test_trajectories"])
+        return cls(**kw)
+

@@ -1,0 +1,155 @@
+"""The run directory (``docs/rundir.md``): where a run's members live, its aggregate
+metrics, history and loss plot, and loading a finished run back (:func:`load_run`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import numpy as np
+
+from . import checkpoint as ckpt
+from .config import FORMAT, TrainConfig
+from .data import (
+    Dataset,
+)
+from .errors import UserError
+from .models import ModelConfig, make_model
+
+# ------------------------------------------------------------------------------ run layout
+
+
+def dataset_info(data: Dataset) -> dict:
+    return {
+        "path": data.path,
+        "sha256": data.sha256,
+        "n": data.n,
+        "m": data.m,
+        "name": data.meta.get("spec", {}).get("name") if isinstance(data.meta, dict) else None,
+    }
+
+
+def member_dir(run_dir: Path, seed: int, k_total: int) -> Path:
+    return run_dir if k_total == 1 else run_dir / f"{ckpt.MEMBER_PREFIX}{seed}"
+
+
+def mean_std(values) -> dict:
+    v = np.asarray(values, dtype=float)
+    return {"mean": float(v.mean()), "std": float(v.std())}
+
+
+def loss_plot(run_dir, histories, labels):
+    from .plots import plot_loss_curves
+
+    plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=str(run_dir.name))
+
+
+
+def mean_history(histories):
+    by_epoch: dict[int, list[dict]] = {}
+    for h in histories:
+        for r in h:
+            by_epoch.setdefault(r["epoch"], []).append(r)
+    rows = []
+    for e in sorted(by_epoch):
+        rs = by_epoch[e]
+        rows.append(
+            {
+                "epoch": e,
+                "train_loss": float(np.mean([r["train_loss"] for r in rs])),
+                "test_loss": float(np.mean([r["test_loss"] for r in rs])),
+                "seconds": max(r["seconds"] for r in rs),
+                "phase": rs[0]["phase"],
+            }
+        )
+    return rows
+
+
+def aggregate_metrics(members, mode, base) -> dict:
+    best = [m.metrics["best_test_loss"] for m in members]
+    return {
+        "seeds": [m.seed for m in members],
+        "ensemble_mode": mode,
+        "best_test_loss": mean_std(best),
+        "final_train_loss": mean_std([m.metrics["final_train_loss"] for m in members]),
+        "seconds": mean_std([m.metrics["seconds"] for m in members]),
+        "best_member": members[int(np.argmin(best))].seed,
+        "pairs": base["pairs"],
+        "train_pairs": base["pairs"]["train"],
+        "test_pairs": base["pairs"]["test"],
+        "members": [m.metrics for m in members],
+    }
+
+
+
+# --------------------------------------------------------------------------------- loading
+
+
+@dataclass
+class LoadedRun:
+    """A trained model read back from a run directory."""
+
+    model: Any
+    model_config: ModelConfig
+    train_config: TrainConfig
+    seed: int
+    run_dir: Path
+    info: dict  # the whole config.json (dataset path/hash, split, pairs, ...)
+
+
+def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
+    """Load the best model of a run directory (``model.eqx`` + ``config.json``).
+
+    For an ensemble directory, ``member`` picks the seed; None picks the member with the lowest
+    best test loss (from ``metrics.json``). A member folder ``RUN/seed-<s>`` loads directly.
+    """
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserError(f"run directory {run_dir}: no such directory")
+    info = ckpt.read_json(run_dir / "config.json")
+    if info.get("format") != FORMAT:
+        raise UserError(f"{run_dir}/config.json: not a softpinn run directory")
+    if "members" in info:
+        seeds = info["seeds"]
+        if member is None:
+            mpath = run_dir / "metrics.json"
+            if mpath.is_file():
+                member = ckpt.read_json(mpath)["best_member"]
+            else:
+                member = seeds[0]
+        if member not in seeds:
+            raise UserError(f"run {run_dir}: no member with seed {member} (seeds {seeds})")
+        return load_run(run_dir / f"{ckpt.MEMBER_PREFIX}{member}")
+    mcfg = ModelConfig.from_dict(info["model"])
+    tcfg = TrainConfig.from_dict(info["train"])
+    if mcfg.dtype == "float64" and not jax.config.jax_enable_x64:
+        raise UserError(
+            f"run {run_dir} holds a float64 model: call "
+            "jax.config.update('jax_enable_x64', True) before loading it"
+        )
+    like = eqx.filter(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)
+    path = run_dir / "model.eqx"
+    if not path.is_file():
+        raise UserError(f"run {run_dir}: no model.eqx yet (training not finished; --resume it)")
+    _, params = ckpt.load_tree(path, like)
+    static = eqx.partition(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)[1]
+    return LoadedRun(
+        model=eqx.combine(params, static),
+        model_config=mcfg,
+        train_config=tcfg,
+        seed=int(info["seed"]),
+        run_dir=run_dir,
+        info=info,
+    )
+
+
+def load_ensemble(run_dir: str | Path) -> list[LoadedRun]:
+    """All members of a run directory (a single run gives a list of one)."""
+    run_dir = Path(run_dir)
+    info = ckpt.read_json(run_dir / "config.json")
+    if "members" not in info:
+        return [load_run(run_dir)]
+    return [load_run(run_dir, member=s) for s in info["seeds"]]
