@@ -41,8 +41,8 @@ _LAZY = {
     "load_run": "softpinn.learn",
     "load_dataset": "softpinn.learn",
     "predict": "softpinn.learn",
-    "ReproduceConfig": "softpinn.bridge.pipelines",
-    "reproduce": "softpinn.bridge.pipelines",
+    "ReproduceConfig": "softpinn.bridge.tasks",
+    "reproduce": "softpinn.bridge.tasks",
     "analyze": "softpinn.bridge.analysis",
 }
 

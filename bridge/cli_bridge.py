@@ -1,5 +1,5 @@
 """``softpinn analyze`` and ``softpinn reproduce``: flags mapped onto :mod:`bridge.analysis` and
-:mod:`bridge.pipelines`."""
+:mod:`bridge.tasks`."""
 
 from __future__ import annotations
 
@@ -142,7 +142,7 @@ def _force_samples(run, data_path, count, transforms):
 
 
 def cmd_reproduce(args) -> int:
-    from .pipelines import ReproduceConfig, reproduce
+    from .tasks import ReproduceConfig, reproduce
 
     config = ReproduceConfig(
         task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,

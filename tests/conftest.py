@@ -40,7 +40,7 @@ def quick_runs(tmp_path_factory):
 
     def get(task):
         if task not in cache:
-            from softpinn.bridge.pipelines import ReproduceConfig, reproduce
+            from softpinn.bridge.tasks import ReproduceConfig, reproduce
 
             config = ReproduceConfig(task, quick=True, epochs=QUICK_EPOCHS, lbfgs_steps=0)
             cache[task] = reproduce(config, root / f"{task}-quick")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
-from softpinn.bridge.pipelines import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
+from softpinn.bridge.tasks import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
 from softpinn.symbolic.spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
@@ -168,7 +168,7 @@ def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
     import dataclasses
     import shutil
 
-    import softpinn.bridge.pipelines as pipelines
+    import softpinn.bridge.tasks.pipeline as pipelines
 
     first = quick_runs("task1")
     out = tmp_path / "task1"

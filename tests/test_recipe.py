@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from softpinn.bridge.pipelines import ReproduceConfig, make_plan
+from softpinn.bridge.tasks import ReproduceConfig, make_plan
 from softpinn.learn.train import TrainConfig
 from softpinn.symbolic import SpecError, load_spec
 from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, Recipe

@@ -1,0 +1,176 @@
+"""The paper's five tasks end to end: ``softpinn reproduce TASK``.
+
+One call runs the whole study of a task (Section III-B, Section IV, Appendix B):
+
+1. **data**: simulate the preset's trajectories with the paper's settings (``[data]``), split
+   them as the paper does (physics-model training, black-box training, test);
+2. **train**: the physics model(s) of the task (Task 1, 2: Lagrangian; Task 3: Hamiltonian;
+   Task 4: Lagrangian and Hamiltonian; Task 5: Lagrangian on the fixed-step and on the 50, 100,
+   1000 Hz data) and the black-box baseline, which gets more data as in the paper;
+3. **predict**: one-step test error and rollouts over the paper's horizon (2.7 s, 5 s, 10 s),
+   long rollouts (Fig. 9) and rollouts with another step size (Figs. 24-25);
+4. **analyze**: learned against true M, M^-1, D, G, A at the paper's table q and at q sampled
+   in the data's range, with the transforms of :mod:`bridge.transforms`;
+5. **report**: ``report.md`` with Table III's row for the task beside ours, the matrix
+   summaries and the figures.
+
+Every stage writes its results under ``OUT/<stage>/`` and a ``done.json`` holding the settings
+that made them; a second call with the same settings skips finished stages, so an interrupted
+run loses at most the stage it was in (training itself resumes from its last checkpoint).
+
+``quick=True`` runs the same pipeline on small settings (few short trajectories, small nets,
+few epochs) in a minute or two; tests and notebooks use it. Full runs use the paper's network
+sizes and data, with our own, shorter training budgets (the recipe's ``[training.full.*]``
+tables, :mod:`symbolic.recipe`).
+"""
+
+
+from __future__ import annotations
+
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import field
+from pathlib import Path
+from typing import Any
+
+from ..errors import UserError
+from .plan import Plan, ReproduceConfig, make_plan
+from .stages import (
+    Stages,
+    integration,
+    stage_analyze,
+    stage_data,
+    stage_floor,
+    stage_modes,
+    stage_predict,
+    stage_train,
+    variant_model,
+    write_json,
+)
+
+
+class ReproduceResult:
+    """What :func:`reproduce` returns: paths and every figure it measured."""
+
+    config: ReproduceConfig
+    out_dir: Path
+    report: Path
+    plan: Plan
+    results: dict = field(repr=False)
+    seconds: float = 0.0
+
+
+def reproduce(
+    config: ReproduceConfig | str,
+    out_dir: str | Path,
+    *,
+    log: Callable[[str], None] | None = None,
+    progress: Callable[[dict], None] | None = None,
+) -> ReproduceResult:
+    """Run a paper task end to end into ``out_dir`` (see the module docstring)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from softpinn.symbolic.spec import load_spec
+
+    if isinstance(config, str):
+        config = ReproduceConfig(task=config)
+    log = log or (lambda s: None)
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    spec = load_spec(config.task)
+    plan = make_plan(spec, config)
+    write_json(out / "plan.json", plan.to_dict())
+    stages = Stages(out, log)
+
+    data_settings = {"plan_data": plan.data, "fixed": plan.fixed_step}
+    data = stages.run("data", data_settings, lambda d: stage_data(spec, plan, d))
+    results: dict[str, Any] = {"data": data, "variants": {}}
+    credit: dict[str, float] = {}  # training time of runs resumed when already finished
+    for variant in plan.variants:
+        vres: dict[str, Any] = {"models": {}}
+        files = data["variants"][variant.name]
+        for kind in variant.models:
+            key = f"{variant.name}/{kind}"
+            mplan = variant_model(plan, variant, kind, files)
+            # the data settings too: a data set simulated again under the same file name
+            # must not leave models trained on the old one
+            settings = {"model": mplan, "files": files, "data": data_settings,
+                        "batch": plan.batch_size, "seeds": plan.seeds, "float32": plan.float32,
+                        "samples": plan.physics_samples if kind != "blackbox" else None}
+            name = f"train/{variant.name}/{kind}"
+            tr = stages.run(name, settings,
+                            lambda d, k=kind, f=files, m=mplan: stage_train(
+                                spec, plan, k, m, f, d, progress))
+            # a finished run found again takes no time now: count the time it trained
+            trained = sum(float(m.get("seconds", 0.0)) for m in tr["metrics"].get("members", []))
+            credit[name] = max(0.0, trained - stages.seconds[name])
+            pr = stages.run(f"predict/{variant.name}/{kind}",
+                            {"train": settings, "horizon": plan.horizon,
+                             "long": plan.long_horizon, "dt": plan.other_dt},
+                            lambda d, k=kind, f=files, t=tr: stage_predict(plan, k, f, t, d))
+            fl = stages.run(f"floor/{variant.name}/{kind}",
+                            {"files": files, "data": data_settings, "no_forces": True,
+                             "integration": integration(mplan),
+                             "state": "momentum" if kind == "hamiltonian" else "velocity"},
+                            lambda d, k=kind, f=files, m=mplan: stage_floor(spec, k, m, f))
+            mo = stages.run(f"modes/{variant.name}/{kind}", {"train": settings},
+                            lambda d, k=kind, f=files, t=tr: stage_modes(spec, k, f, t))
+            entry = {"train": tr, "predict": pr, "floor": fl, "modes": mo}
+            if kind != "blackbox":
+                entry["analyze"] = stages.run(
+                    f"analyze/{variant.name}/{kind}",
+                    {"train": settings, "points": plan.analysis_points, "every_seed": True,
+                     "force_samples": plan.analysis_points * 10, "accelerations": 3},
+                    lambda d, t=tr, f=files: stage_analyze(spec, plan, t, f, d),
+                )
+            vres["models"][kind] = entry
+            log(f"{key}: test {pr['test_error']['mean']:.3e}, rollout "
+                f"{pr['prediction_error']['mean']:.3e} over {plan.horizon:g} s")
+        results["variants"][variant.name] = vres
+    # the run's time is that of its stages when they ran (a call that reuses finished stages
+    # reports what they took then), plus this call's own overhead
+    seconds = sum(stages.seconds.values()) + sum(credit.values()) + (
+        time.perf_counter() - t_start - sum(
+            v for k, v in stages.seconds.items() if k in stages.ran))
+    results["stage_seconds"] = {k: v + credit.get(k, 0.0) for k, v in stages.seconds.items()}
+    from ..report import write_task_report
+
+    report = write_task_report(spec, plan, results, out, seconds=seconds,
+                               machine=machine_description())
+    write_json(out / "results.json", {
+        "task": plan.task, "quick": plan.quick, "seconds": seconds,
+        "machine": machine_description(), "results": results,
+    })
+    log(f"report: {report}")
+    return ReproduceResult(config, out, report, plan, results, seconds)
+
+
+def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:
+    """The configuration and output folder a task notebook uses, from the environment:
+    ``SOFTPINN_QUICK`` ("0" for the full run; default quick), ``SOFTPINN_OUT`` (default
+    ``runs/notebooks``), and ``SOFTPINN_EPOCHS`` / ``SOFTPINN_LBFGS`` to override the budgets
+    (the test suite runs the notebooks on the shortest budgets)."""
+
+    quick = os.environ.get("SOFTPINN_QUICK", "1") != "0"
+    epochs = os.environ.get("SOFTPINN_EPOCHS")
+    lbfgs = os.environ.get("SOFTPINN_LBFGS")
+    config = ReproduceConfig(
+        task, quick=quick, epochs=int(epochs) if epochs else None,
+        lbfgs_steps=int(lbfgs) if lbfgs else None,
+    )
+    root = Path(os.environ.get("SOFTPINN_OUT", "runs/notebooks"))
+    return config, root / f"{task}{'-quick' if quick else ''}"
+
+
+def machine_description() -> str:
+
+    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}, " \
+           f"Python {platform.python_version()}"
+
+
