@@ -146,8 +146,8 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
 def test_progress_bars_count_epochs_then_lbfgs_iterations(capsys):
     """The epoch bar counts AdamW epochs; the L-BFGS finish gets a bar of its own that counts
     its iterations (the epoch bar used to stand still through it)."""
-    from softpinn.bridge.cli_bridge import _EpochBar
-    from softpinn.bridge.cli_learn import _Bar
+    from softpinn.bridge.cli.bridge import _EpochBar
+    from softpinn.bridge.cli.learn import _Bar
 
     def info(phase, epoch, done=None):
         return {"label": "0", "epoch": epoch, "epochs": 4, "phase": phase, "lbfgs_steps": 30,

@@ -6,8 +6,8 @@ from __future__ import annotations
 import json
 import sys
 
-from .cli_learn import _enable_x64
-from .errors import UserError
+from ..errors import UserError
+from .learn import _enable_x64
 
 
 def register(subparsers) -> None:
@@ -69,8 +69,8 @@ def cmd_analyze(args) -> int:
     from softpinn.symbolic.model import TrueModel
     from softpinn.symbolic.spec import load_spec
 
-    from .analysis import analysis_q, analyze, write_report
-    from .transforms import TRANSFORMS
+    from ..analysis import analysis_q, analyze, write_report
+    from ..transforms import TRANSFORMS
 
     spec = load_spec(args.model)
     run = load_run(args.run)
@@ -118,7 +118,7 @@ def _force_samples(run, data_path, count, transforms):
 
     from softpinn.learn.data import load_dataset
 
-    from .forces import data_samples
+    from ..forces import data_samples
 
     if count < 0:
         raise UserError(f"--samples: expected 0 or more, got {count}")
@@ -142,7 +142,7 @@ def _force_samples(run, data_path, count, transforms):
 
 
 def cmd_reproduce(args) -> int:
-    from .tasks import ReproduceConfig, reproduce
+    from ..tasks import ReproduceConfig, reproduce
 
     config = ReproduceConfig(
         task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,
@@ -167,7 +167,7 @@ class _EpochBar:
     """One tqdm bar per trained model, driven by the training callback."""
 
     def __init__(self):
-        from .cli_learn import LbfgsBar
+        from .learn import LbfgsBar
 
         self.bar = None
         self.key = None

@@ -14,9 +14,10 @@ import sys
 
 #: Modules that contribute subcommands, in the order they appear in ``--help``.
 COMMAND_MODULES = (
-    "softpinn.bridge.cli_symbolic",
-    "softpinn.bridge.cli_learn",
-    "softpinn.bridge.cli_bridge",
+    "softpinn.bridge.cli.symbolic",
+    "softpinn.bridge.cli.learn",
+    "softpinn.bridge.cli.bridge",
+    "softpinn.bridge.export.cli",
 )
 
 
@@ -39,13 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # a command group not built yet
-            if exc.name != name:
-                raise
-            continue
-        module.register(sub)
+        importlib.import_module(name).register(sub)
     return parser
 
 
