@@ -41,9 +41,9 @@ _LAZY = {
     "load_run": "softpinn.learn",
     "load_dataset": "softpinn.learn",
     "predict": "softpinn.learn",
-    "ReproduceConfig": "softpinn.bridge.tasks",
-    "reproduce": "softpinn.bridge.tasks",
-    "analyze": "softpinn.bridge.analysis",
+    "ReproduceConfig": "softpinn.bridge",
+    "reproduce": "softpinn.bridge",
+    "analyze": "softpinn.bridge",
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from softpinn.bridge.transforms import TRANSFORMS, fit_transform
+from softpinn.bridge.analysis.transforms import TRANSFORMS, fit_transform
 
 # Table I (seed text), per q: true M, G, A (D = 0.1 I) and learned M^, D^, G^, A^, printed P.
 TABLE_I = [

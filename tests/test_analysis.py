@@ -20,7 +20,7 @@ from softpinn.bridge.analysis import (
     write_report,
 )
 from softpinn.bridge.errors import UserError
-from softpinn.bridge.tables import read_csv
+from softpinn.bridge.report.tables import read_csv
 from softpinn.learn.models import ModelConfig, make_model
 from softpinn.symbolic.model import TrueModel
 

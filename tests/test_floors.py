@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.bridge.floors import drift_baseline, integration_floor, true_vector_field
+from softpinn.bridge.analysis.floors import drift_baseline, integration_floor, true_vector_field
 from softpinn.learn.data import PairData
 
 

@@ -13,11 +13,16 @@ from known_fields import Field, MassField
 from test_analysis import ScaledTask1
 
 from softpinn.bridge.analysis import analyze, sample_q, write_report
+from softpinn.bridge.analysis.forces import (
+    compare_forces,
+    data_samples,
+    force_terms,
+    markdown_lines,
+)
+from softpinn.bridge.analysis.matrices import MatrixStack
+from softpinn.bridge.analysis.transforms import fit_transform
 from softpinn.bridge.errors import UserError
-from softpinn.bridge.forces import compare_forces, data_samples, force_terms, markdown_lines
-from softpinn.bridge.matrices import MatrixStack
-from softpinn.bridge.plots import plot_forces
-from softpinn.bridge.transforms import fit_transform
+from softpinn.bridge.report.plots import plot_forces
 from softpinn.learn.models import HamiltonianNet, ModelConfig
 from softpinn.symbolic.model import TrueModel
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
+from softpinn.bridge.analysis.modes import format_modes, modes, true_jacobian
 from softpinn.bridge.errors import UserError
-from softpinn.bridge.modes import format_modes, modes, true_jacobian
 from softpinn.learn.models import LagrangianNet, ModelConfig
 from softpinn.learn.nets import ZeroMatrix
 from softpinn.symbolic.model import TrueModel

@@ -8,8 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from softpinn.bridge.analysis.transforms import fit_joint, fit_smooth, fit_transform
 from softpinn.bridge.errors import UserError
-from softpinn.bridge.tables import (
+from softpinn.bridge.report.tables import (
     format_mean_std,
     format_number,
     load_paper_tables,
@@ -24,7 +25,6 @@ from softpinn.bridge.tables import (
     transform_table,
     write_table,
 )
-from softpinn.bridge.transforms import fit_joint, fit_smooth, fit_transform
 
 TASK4_ROW = {  # Table I, q = [1.2, -0.2, 0.15], mathematical model
     "M": [[1.728e-03, -3.121e-05, -1.957e-03], [-3.121e-05, 1.546e-03, 3.261e-04],
@@ -177,7 +177,8 @@ def test_summary_table_lists_each_transform():
 
 def test_table_iii_comparison_puts_paper_numbers_in():
     paper = load_paper_tables()
-    ref = json.loads((Path(__file__).parents[1] / "bridge" / "paper_tables.json").read_text())
+    shipped = Path(__file__).parents[1] / "bridge" / "report" / "paper_tables.json"
+    ref = json.loads(shipped.read_text())
     assert paper == ref
     ours = {
         "physics": {
@@ -213,7 +214,7 @@ def test_table_iii_comparison_puts_paper_numbers_in():
 
 
 def test_our_epochs_cell_counts_an_lbfgs_finish():
-    from softpinn.bridge.report import _epochs
+    from softpinn.bridge.report.task import _epochs
 
     assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 200}}) == "400 + 200 L-BFGS"
     assert _epochs({"epochs": 400, "config": {"lbfgs_steps": 0}}) == 400

@@ -13,7 +13,7 @@ from softpinn.symbolic import TrueModel
 
 # the package ships a copy of ../shared/paper/tables.json (tests/test_report_tables.py checks
 # that the copy carries the paper's numbers), so the test does not depend on where shared/ is
-TABLES = Path(__file__).resolve().parents[1] / "bridge" / "paper_tables.json"
+TABLES = Path(__file__).resolve().parents[1] / "bridge" / "report" / "paper_tables.json"
 DATA = json.loads(TABLES.read_text())
 
 

@@ -7,8 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from softpinn.bridge.errors import UserError
-from softpinn.bridge.transforms import (
+from softpinn.bridge.analysis.transforms import (
     TRANSFORMS,
     MatrixStack,
     Status,
@@ -21,6 +20,7 @@ from softpinn.bridge.transforms import (
     fit_transform,
     make_basis,
 )
+from softpinn.bridge.errors import UserError
 
 N_DOF = 3
 

@@ -70,7 +70,7 @@ def cmd_analyze(args) -> int:
     from softpinn.symbolic.spec import load_spec
 
     from ..analysis import analysis_q, analyze, write_report
-    from ..transforms import TRANSFORMS
+    from ..analysis.transforms import TRANSFORMS
 
     spec = load_spec(args.model)
     run = load_run(args.run)
@@ -118,7 +118,7 @@ def _force_samples(run, data_path, count, transforms):
 
     from softpinn.learn.data import load_dataset
 
-    from ..forces import data_samples
+    from ..analysis.forces import data_samples
 
     if count < 0:
         raise UserError(f"--samples: expected 0 or more, got {count}")

@@ -320,7 +320,7 @@ def stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
     from softpinn.learn.data import load_dataset, make_pairs
     from softpinn.symbolic.model import TrueModel
 
-    from ..floors import drift_baseline, integration_floor
+    from ..analysis.floors import drift_baseline, integration_floor
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     state = "momentum" if kind == "hamiltonian" else "velocity"
@@ -343,7 +343,7 @@ def stage_modes(spec, kind: str, files: dict, trained: dict) -> dict:
     from softpinn.learn.train import load_ensemble
     from softpinn.symbolic.model import TrueModel
 
-    from ..modes import modes
+    from ..analysis.modes import modes
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     data = load_dataset(f["path"])
@@ -375,7 +375,7 @@ def stage_analyze(spec, plan: Plan, trained: dict, files: dict, folder: Path) ->
     from softpinn.symbolic.model import TrueModel
 
     from ..analysis import analysis_q, analyze, summary_numbers, write_report
-    from ..forces import data_samples
+    from ..analysis.forces import data_samples
 
     true = TrueModel(spec)
     q, k = analysis_q(spec, count=plan.analysis_points, seed=0)

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 from .matrices import (
     BLOCKS,
     MATRICES,

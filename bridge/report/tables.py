@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 
 Cell = float | int | str | None
 
@@ -193,7 +193,7 @@ def transform_table(
     """Table I / II: true and learned matrices at each q, then (with a transform ``result``)
     the transformed learned matrices ``P X^`` and P itself. ``true`` and ``learned`` are
     :class:`bridge.transforms.MatrixStack` or dicts; ``M_inv`` is allowed in ``matrices``."""
-    from .transforms import as_stack
+    from ..analysis.transforms import as_stack
 
     true, learned = as_stack(true, "true"), as_stack(learned, "learned")
     cols, tex = [], {}

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 
 #: Order of the blocks in the joint equation ``P [M^ D^ A^ G^] ~= [M D A G]``.
 BLOCKS = ("M", "D", "A", "G")

@@ -17,8 +17,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from .errors import UserError
-from .transforms import as_stack
+from ..analysis.transforms import as_stack
+from ..errors import UserError
 
 _TITLES = {"M": "M(q)", "M_inv": "M(q)^-1", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
 
@@ -144,7 +144,7 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
     the learned A u's error against G's, per component: points on the identity are errors that
     cancel in the net force A u − G − D q̇. In the acceleration frame the same for M⁻¹ times
     each term."""
-    from .forces import FRAME_LABELS, TERMS
+    from ..analysis.forces import FRAME_LABELS, TERMS
 
     terms = getattr(forces, "terms", None)
     if not terms:

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 from .tables import (
     format_mean_std,
     load_paper_tables,
@@ -135,7 +135,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
 
 def _modes_lines(models: dict) -> list[str]:
     """The true and each learned model's eigenvalues at rest at the data's mean q and u."""
-    from .modes import format_modes
+    from ..analysis.modes import format_modes
 
     rows = [(kind, e["modes"]) for kind, e in models.items() if e.get("modes")]
     if not rows:
@@ -248,7 +248,7 @@ def _force_lines(folder: Path, out: Path) -> list[str]:
     path = folder / "analysis.json"
     if not path.is_file():
         return []
-    from .forces import markdown_lines
+    from ..analysis.forces import markdown_lines
 
     analysis = json.loads(path.read_text())
     lines = []

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 from .floors import true_vector_field
 
 __all__ = ["format_modes", "learned_jacobian", "modes", "rest_state", "true_jacobian"]

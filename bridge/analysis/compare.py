@@ -21,11 +21,11 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
+from ..report.plots import plot_entries_scatter, plot_forces, plot_transform_entries
+from ..report.tables import summary_table, to_markdown, transform_table, write_table
 from .forces import ForceComparison, compare_forces
 from .forces import markdown_lines as force_lines
-from .plots import plot_entries_scatter, plot_forces, plot_transform_entries
-from .tables import summary_table, to_markdown, transform_table, write_table
 from .transforms import (
     MATRICES,
     TRANSFORMS,
@@ -396,7 +396,7 @@ def write_report(
 
 
 def _first_q(table, k):
-    from .tables import Table
+    from ..report.tables import Table
 
     rows = table.rows[: k * table.block_rows] if table.block_rows else table.rows[:k]
     return Table(table.spans, rows, block_rows=table.block_rows)

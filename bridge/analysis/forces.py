@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from ..errors import UserError
 from .matrices import MatrixStack, check_pair
 
 #: The force terms in report order; ``net = A u − G − D q̇``.
