@@ -1,4 +1,6 @@
-"""Dataset files: the paper's data generation (Section III-B, Table III) and the ``.npz`` format.
+"""Data generation after the paper (Section III-B, Table III): a spec's ``[data]`` table
+(:mod:`symbolic.datatable`) becomes trajectories in the dataset format (:mod:`symbolic.datafile`,
+re-exported here).
 
 A preset's ``[data]`` table says how the paper generated the data of its task; :class:`DataConfig`
 validates it (unknown keys are refused with a message naming the file and the field).
@@ -7,7 +9,7 @@ validates it (unknown keys are refused with a message naming the file and the fi
 :class:`DatasetArrays`; :func:`write_dataset` writes it atomically (temporary file, then
 :func:`os.replace`); :func:`read_dataset` reads it back with numpy alone.
 
-File contents (DESIGN.md, Dataset file): flat arrays over all samples of all trajectories,
+File contents (``docs/dataset.md``): flat arrays over all samples of all trajectories,
 ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p`` (T, n), ``u`` (T, m), ``traj`` (T,) int64, and
 ``meta``, a 0-d string of JSON with the keys ``format``, ``format_version``, ``spec`` (the model
 spec, ``ModelSpec.to_dict()``), ``n``, ``m``, ``coordinates``, ``simulation`` (integrator,
@@ -19,247 +21,69 @@ Seeding: trajectory k draws its initial state and then its signal from
 ``numpy.random.default_rng([seed, k])``, so trajectory k is the same whatever the count.
 """
 
+
 from __future__ import annotations
 
-import json
 import os
-import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .errors import UserError
+from .datafile import (
+    ARRAY_KEYS,
+    FORMAT,
+    FORMAT_VERSION,
+    DatasetArrays,
+    read_dataset,
+    resample,
+    select_trajectories,
+    signals_of,
+    split,
+    take_samples,
+    write_dataset,
+)
+from .datatable import (
+    DATA_KEYS,
+    SIGNAL_RANGE_KEYS,
+    DataConfig,
+    DataError,
+    data_config,
+    with_overrides,
+)
 from .signals import KINDS as SIGNAL_KINDS
-from .signals import Signal, sample_signal, signal_from_dict
+from .signals import Signal, sample_signal
 from .simulate import INTEGRATORS, SimulationConfig, simulate
 from .spec import ModelSpec, load_spec
 
-FORMAT = "softpinn-dataset"
-FORMAT_VERSION = 1
-ARRAY_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj")
-
-
-class DataError(UserError):
-    """A bad ``[data]`` table, dataset option or dataset file."""
-
-
-# --------------------------------------------------------------------------------------------
-# [data] tables
-
-#: key -> (kind, description). Kinds: "int", "float", "str", "floats" (a list of numbers),
-#: "nvec" (n numbers), "mvec" (m numbers or one number), "nrows" (a list of rows of n numbers).
-DATA_KEYS: dict[str, tuple[str, str]] = {
-    "integrator": ("str", "cvodes | rk4"),
-    "rate": ("float", "output rate [Hz]"),
-    "rates": ("floats", "output rates [Hz]: written at the highest, resampled to the others"),
-    "duration": ("float", "seconds per trajectory"),
-    "settle": ("float", "seconds simulated before recording starts (the release transient)"),
-    "trajectories": ("int", "number of trajectories (default: max(train, black-box train) + test)"),
-    "train_trajectories": ("int", "physics-model training trajectories"),
-    "test_trajectories": ("int", "test trajectories (the last ones)"),
-    "blackbox_train_trajectories": ("int", "black-box training trajectories (the first ones)"),
-    "physics_samples": ("int", "samples of the training data the physics model uses"),
-    "fixed_step_dt": ("float", "RK4 step [s] of the fixed-step data set"),
-    "fixed_step_rate": ("float", "output rate [Hz] of the fixed-step data (default 1 / dt)"),
-    "fixed_step_trajectories": ("int", "trajectories of the fixed-step data set"),
-    "fixed_step_train_trajectories": ("int", "of which for training"),
-    "q0_low": ("nvec", "initial q, lower bounds"),
-    "q0_high": ("nvec", "initial q, upper bounds"),
-    "q0_points": (
-        "nrows",
-        "initial q of the first trajectories, one row each (e.g. configurations the matrix "
-        "tables inspect that the drawn ones do not reach); their qd and inputs are still drawn",
-    ),
-    "qd0_low": ("nvec", "initial qd, lower bounds"),
-    "qd0_high": ("nvec", "initial qd, upper bounds"),
-    "signal": ("str", "zero | sinusoid | multisine | step | chirp"),
-    "amplitude_low": ("mvec", ""),
-    "amplitude_high": ("mvec", ""),
-    "offset_low": ("mvec", ""),
-    "offset_high": ("mvec", ""),
-    "frequency_low": ("mvec", "[Hz]"),
-    "frequency_high": ("mvec", "[Hz]"),
-    "phase_low": ("mvec", "[rad]"),
-    "phase_high": ("mvec", "[rad]"),
-    "components": ("int", "multisine components"),
-    "steps": ("int", "switches of a step signal"),
-    "seed": ("int", "random seed"),
-    "noise": ("float", "standard deviation of Gaussian measurement noise"),
-    "rtol": ("float", "cvodes relative tolerance"),
-    "atol": ("float", "cvodes absolute tolerance"),
-}
-
-SIGNAL_RANGE_KEYS = tuple(k for k, (kind, _) in DATA_KEYS.items() if kind == "mvec")
-
-
-@dataclass(frozen=True)
-class DataConfig:
-    """A validated ``[data]`` table (defaults where the table is silent)."""
-
-    integrator: str = "cvodes"
-    rates: tuple[float, ...] = (100.0,)
-    duration: float = 10.0
-    settle: float = 0.0
-    trajectories: int | None = None
-    train_trajectories: int | None = None
-    test_trajectories: int = 0
-    blackbox_train_trajectories: int | None = None
-    physics_samples: int | None = None
-    fixed_step_dt: float | None = None
-    fixed_step_rate: float | None = None
-    fixed_step_trajectories: int | None = None
-    fixed_step_train_trajectories: int | None = None
-    q0_low: tuple[float, ...] = ()
-    q0_high: tuple[float, ...] = ()
-    q0_points: tuple[tuple[float, ...], ...] = ()
-    qd0_low: tuple[float, ...] = ()
-    qd0_high: tuple[float, ...] = ()
-    signal: str = "zero"
-    ranges: Mapping[str, Any] = field(default_factory=dict)
-    components: int = 3
-    steps: int = 1
-    seed: int = 0
-    noise: float = 0.0
-    rtol: float = 1e-10
-    atol: float = 1e-10
-
-    @property
-    def rate(self) -> float:
-        return max(self.rates)
-
-    def total_trajectories(self, integrator: str | None = None) -> int:
-        """Trajectories to simulate: explicit, or the paper's train/black-box/test counts."""
-        if (integrator or self.integrator) == "rk4" and self.fixed_step_trajectories:
-            return self.fixed_step_trajectories
-        if self.trajectories is not None:
-            return self.trajectories
-        train = max(self.train_trajectories or 0, self.blackbox_train_trajectories or 0)
-        return max(1, train + self.test_trajectories)
-
-
-def data_config(spec: ModelSpec, table: Mapping[str, Any] | None = None) -> DataConfig:
-    """Validate ``table`` (default: the spec's ``[data]``) for the spec's n and m.
-
-    Errors name the spec's file and the field, e.g. ``preset:task4: field 'data.q0_low': ...``.
-    """
-    raw = dict(spec.data if table is None else table)
-    n, m = spec.n, spec.m
-    src = spec.source
-
-    def fail(key, msg):
-        raise DataError(f"{src}: field 'data.{key}': {msg}")
-
-    unknown = sorted(set(raw) - set(DATA_KEYS))
-    if unknown:
-        fail(unknown[0], f"unknown key (allowed: {', '.join(DATA_KEYS)})")
-    out: dict[str, Any] = {}
-    ranges: dict[str, Any] = {}
-    for key, value in raw.items():
-        kind = DATA_KEYS[key][0]
-        if kind == "int":
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                fail(key, f"expected a non-negative integer, got {value!r}")
-            out[key] = value
-        elif kind == "float":
-            if (
-                isinstance(value, bool)
-                or not isinstance(value, (int, float))
-                or not np.isfinite(value)
-            ):
-                fail(key, f"expected a number, got {value!r}")
-            if key == "settle" and value < 0:
-                fail(key, f"must not be negative, got {value!r}")
-            if value < 0 or (value == 0 and key not in ("noise", "settle")):
-                fail(key, f"must be positive, got {value!r}")
-            out[key] = float(value)
-        elif kind == "str":
-            if not isinstance(value, str):
-                fail(key, f"expected a string, got {value!r}")
-            options = INTEGRATORS if key == "integrator" else SIGNAL_KINDS
-            if value not in options:
-                fail(key, f"expected one of {', '.join(options)}, got {value!r}")
-            out[key] = value
-        elif kind == "nrows":
-            rows = value if isinstance(value, list) else None
-            if not rows or not all(
-                isinstance(r, list)
-                and len(r) == n
-                and all(
-                    isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-                    for v in r
-                )
-                for r in rows
-            ):
-                fail(key, f"expected a list of rows of {n} finite numbers, got {value!r}")
-            out[key] = tuple(tuple(float(v) for v in r) for r in rows)
-        else:
-            vals = value if isinstance(value, list) else [value]
-            if not vals or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v)
-                for v in vals
-            ):
-                fail(key, f"expected a list of finite numbers, got {value!r}")
-            if kind == "nvec" and len(vals) != n:
-                fail(key, f"expected {n} entries (one per coordinate), got {len(vals)}")
-            if kind == "mvec" and m and len(vals) not in (1, m):
-                fail(key, f"expected {m} entries (one per input), got {len(vals)}")
-            if kind == "floats" and any(v <= 0 for v in vals):
-                fail(key, f"rates must be positive, got {vals}")
-            if kind == "mvec":
-                ranges[key] = [float(v) for v in vals]
-            else:
-                out[key] = tuple(float(v) for v in vals)
-    if "rate" in out and "rates" in out:
-        fail("rates", "give either 'rate' or 'rates', not both")
-    if "rate" in out:
-        out["rates"] = (out.pop("rate"),)
-    for a, b in (("q0_low", "q0_high"), ("qd0_low", "qd0_high")):
-        if a in out and b in out and any(h < lo for lo, h in zip(out[a], out[b], strict=True)):
-            fail(b, f"must not be below {a}")
-        if (a in out) != (b in out):
-            fail(b if a in out else a, f"give both {a} and {b}")
-    for lo_key in [k for k in ranges if k.endswith("_low")]:
-        hi_key = lo_key[:-4] + "_high"
-        if hi_key in ranges:
-            lo = np.broadcast_to(ranges[lo_key], (max(m, 1),))
-            hi = np.broadcast_to(ranges[hi_key], (max(m, 1),))
-            if np.any(hi < lo):
-                fail(hi_key, f"must not be below {lo_key}")
-    return DataConfig(ranges=ranges, **out)
-
-
-# --------------------------------------------------------------------------------------------
-# Arrays
-
-
-@dataclass
-class DatasetArrays:
-    """The arrays and meta of a dataset file (flat over samples, see the module docstring)."""
-
-    t: np.ndarray
-    q: np.ndarray
-    qd: np.ndarray
-    qdd: np.ndarray
-    p: np.ndarray
-    u: np.ndarray
-    traj: np.ndarray
-    meta: dict
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in ARRAY_KEYS}
-
-    @property
-    def trajectory_ids(self) -> np.ndarray:
-        return np.unique(self.traj)
-
-    def __len__(self) -> int:
-        return len(self.t)
-
+__all__ = [
+    "ARRAY_KEYS",
+    "DATA_KEYS",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "SIGNAL_RANGE_KEYS",
+    "DataConfig",
+    "DataError",
+    "DatasetArrays",
+    "DatasetPlan",
+    "data_config",
+    "draw_trajectories",
+    "make_dataset",
+    "paper_splits",
+    "plan_dataset",
+    "read_dataset",
+    "resample",
+    "select_trajectories",
+    "signals_of",
+    "split",
+    "take_samples",
+    "with_overrides",
+    "write_dataset",
+]
 
 def _rng(seed: int, k: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(k)])
@@ -533,134 +357,3 @@ def _version(dist: str) -> str | None:
     except metadata.PackageNotFoundError:
         return None
 
-
-# --------------------------------------------------------------------------------------------
-# Files
-
-
-def write_dataset(path: str | os.PathLike, data: DatasetArrays, *, force: bool = False) -> Path:
-    """Write ``data`` to ``path`` (``.npz``) atomically; refuse to overwrite without ``force``."""
-    path = Path(path)
-    if path.suffix != ".npz":
-        raise DataError(f"--out {path}: a dataset file must end in .npz")
-    if path.exists() and not force:
-        raise DataError(f"--out {path}: file exists (use --force to overwrite)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".npz", dir=path.parent)
-    os.close(fd)
-    try:
-        with open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                **{k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
-                meta=np.array(json.dumps(data.meta)),
-            )
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def read_dataset(path: str | os.PathLike) -> DatasetArrays:
-    """Read a dataset file (numpy only; the learning side has its own validating loader)."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"dataset file {path}: no such file")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [k for k in (*ARRAY_KEYS, "meta") if k not in z.files]
-        if missing:
-            raise DataError(f"dataset file {path}: missing key(s) {', '.join(missing)}")
-        arrays = {k: np.asarray(z[k]) for k in ARRAY_KEYS}
-        meta = json.loads(str(z["meta"].item()))
-    return DatasetArrays(meta=meta, **arrays)
-
-
-# --------------------------------------------------------------------------------------------
-# Resampling and splitting
-
-
-def select_trajectories(
-    data: DatasetArrays, ids: Sequence[int], *, renumber: bool = False
-) -> DatasetArrays:
-    """The samples of the trajectories ``ids`` (in that order); meta records the selection."""
-    ids = [int(i) for i in ids]
-    known = set(data.trajectory_ids.tolist())
-    missing = [i for i in ids if i not in known]
-    if missing:
-        raise DataError(f"trajectories {missing} are not in the data set (it has {sorted(known)})")
-    rows = (
-        np.concatenate([np.flatnonzero(data.traj == i) for i in ids])
-        if ids
-        else np.zeros(0, dtype=int)
-    )
-    out = {k: getattr(data, k)[rows] for k in ARRAY_KEYS}
-    if renumber:
-        mapping = {old: new for new, old in enumerate(ids)}
-        out["traj"] = np.array([mapping[int(i)] for i in out["traj"]], dtype=np.int64)
-    meta = dict(data.meta)
-    meta["selected_trajectories"] = ids
-    if renumber and "signals" in meta:
-        meta["signals"] = [data.meta["signals"][i] for i in ids]
-        meta["initial_states"] = [data.meta["initial_states"][i] for i in ids]
-        meta["trajectories"] = len(ids)
-    return DatasetArrays(meta=meta, **out)
-
-
-def resample(data: DatasetArrays, rate: float) -> DatasetArrays:
-    """Keep every k-th sample so that the output rate becomes ``rate`` [Hz].
-
-    The data set's rate must be a whole multiple of ``rate`` (the samples are exact states of the
-    variable-step solution at the new rate's times, as the paper's 1000/100/50 Hz data).
-    """
-    src = float(data.meta.get("rate", 0.0))
-    if not (rate > 0 and np.isfinite(rate)):
-        raise DataError(f"rate: must be positive, got {rate}")
-    ratio = src / rate
-    if src <= 0 or ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-9 * ratio:
-        raise DataError(f"rate: {rate:g} Hz must divide the data set's rate {src:g} Hz")
-    k = int(round(ratio))
-    rows = np.concatenate([np.flatnonzero(data.traj == i)[::k] for i in data.trajectory_ids])
-    meta = dict(data.meta)
-    meta["rate"] = float(rate)
-    meta["resampled_from_rate"] = src
-    meta["samples_per_trajectory"] = int(len(rows) // max(len(data.trajectory_ids), 1))
-    meta["simulation"] = dict(meta.get("simulation", {}), rate=float(rate))
-    return DatasetArrays(meta=meta, **{key: getattr(data, key)[rows] for key in ARRAY_KEYS})
-
-
-def split(data: DatasetArrays, name: str) -> DatasetArrays:
-    """One of the paper's splits recorded in meta: ``train``, ``test`` or ``blackbox_train``."""
-    splits = data.meta.get("splits", {})
-    if name not in splits:
-        raise DataError(f"split: expected one of {', '.join(splits)}, got {name!r}")
-    return select_trajectories(data, splits[name])
-
-
-def take_samples(data: DatasetArrays, count: int | None) -> DatasetArrays:
-    """The first ``count`` samples in file order (whole trajectories first, the last one cut),
-    e.g. the paper's ``physics_samples``; None keeps everything."""
-    if count is None or count >= len(data):
-        return data
-    if count < 2:
-        raise DataError(f"physics_samples: must be at least 2, got {count}")
-    out = {k: getattr(data, k)[:count] for k in ARRAY_KEYS}
-    meta = dict(data.meta, samples_kept=int(count))
-    return DatasetArrays(meta=meta, **out)
-
-
-def with_overrides(cfg: DataConfig, **kwargs) -> DataConfig:
-    """A copy of ``cfg`` with fields replaced (values already validated by the caller)."""
-    return replace(cfg, **{k: v for k, v in kwargs.items() if v is not None})
-
-
-def signals_of(data: DatasetArrays) -> list[Signal]:
-    """The input signals recorded in a data set's meta."""
-    return [signal_from_dict(d) for d in data.meta.get("signals", [])]
