@@ -10,15 +10,14 @@ import pytest
 
 from softpinn.bridge.analysis.transforms import fit_joint, fit_smooth, fit_transform
 from softpinn.bridge.errors import UserError
+from softpinn.bridge.report.paper import load_paper_tables, table_iii_comparison
 from softpinn.bridge.report.tables import (
     format_mean_std,
     format_number,
-    load_paper_tables,
     matrix_table,
     parse_csv,
     read_csv,
     summary_table,
-    table_iii_comparison,
     to_csv,
     to_latex,
     to_markdown,

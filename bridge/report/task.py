@@ -19,13 +19,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import UserError
-from .tables import (
-    format_mean_std,
-    load_paper_tables,
-    table_iii_comparison,
-    to_markdown,
-    write_table,
-)
+from .paper import load_paper_tables, table_iii_comparison
+from .tables import format_mean_std, to_markdown, write_table
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 _COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
