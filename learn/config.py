@@ -34,6 +34,9 @@ class TrainConfig:
     ``model``: the network (:class:`learn.models.ModelConfig`; its n, m must match the data).
     ``epochs``: passes over the training pairs in minibatches of ``batch_size`` (clipped to the
     number of pairs; the remainder of each shuffled epoch is dropped so shapes never change).
+    ``batch_size`` None (the default) takes ``max(64, pairs // 100)``: batches of 64 train
+    small data sets well (a mass-spring-damper reached a test loss of 1e-8 in 150 epochs where
+    batches of 1,000 stalled at 7e-5), and larger data sets get about 100 steps per epoch.
     ``lr``: peak AdamW learning rate; ``schedule``: "cosine" (linear warmup over ``warmup`` of
     all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
@@ -57,7 +60,7 @@ class TrainConfig:
 
     model: ModelConfig
     epochs: int = 1000
-    batch_size: int = 1024
+    batch_size: int | None = None
     lr: float = 1e-3
     schedule: str = "cosine"
     warmup: float = 0.02
@@ -85,9 +88,13 @@ class TrainConfig:
     def __post_init__(self):
         if not isinstance(self.model, ModelConfig):
             raise UserError(f"TrainConfig.model must be a ModelConfig, got {type(self.model)}")
+        if self.batch_size is not None and (
+                isinstance(self.batch_size, bool) or not isinstance(self.batch_size, int)
+                or self.batch_size < 1):
+            raise UserError(f"batch_size: expected an integer >= 1 or None (auto), got "
+                            f"{self.batch_size!r}")
         pos_int = (
             "epochs",
-            "batch_size",
             "substeps",
             "seeds",
             "eval_every",
@@ -137,6 +144,11 @@ class TrainConfig:
                 "--loss accel (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
                 f"a {self.model.kind} model uses the {self.model.state_kind} state"
             )
+
+    def batch_for(self, pairs: int) -> int:
+        """The minibatch size for ``pairs`` training pairs (see ``batch_size``)."""
+        batch = self.batch_size if self.batch_size is not None else max(64, pairs // 100)
+        return max(1, min(batch, pairs))
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}

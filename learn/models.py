@@ -428,15 +428,20 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
     return {"mass": mass, "potential": potential, "damping": damping, "input_map": input_map}
 
 
+def ensure_dtype(dtype: str) -> None:
+    """Let JAX compute in ``dtype``: float64 needs JAX's 64-bit mode, which softpinn.learn turns
+    on by itself at its entry points (``make_model``, ``train``, ``load_run``) rather than at
+    import, so that importing the package changes no global setting. Arrays made before stay as
+    they were; the models, data and programs made after are float64."""
+    if dtype == "float64" and not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
+
+
 def make_model(config: ModelConfig, *, key) -> DynamicsModel:
     """Build a freshly initialised model of ``config.kind`` with parameters in ``config.dtype``."""
     if not isinstance(config, ModelConfig):
         raise UserError(f"config must be a ModelConfig, got {type(config).__name__}")
-    if config.dtype == "float64" and not jax.config.jax_enable_x64:
-        raise UserError(
-            "model dtype is 'float64' but JAX runs in 32 bits: call "
-            "jax.config.update('jax_enable_x64', True) first, or choose dtype 'float32'"
-        )
+    ensure_dtype(config.dtype)
     if config.kind == "blackbox":
         n, m = config.n, config.m
         mlp = make_mlp(

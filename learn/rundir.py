@@ -17,7 +17,7 @@ from .data import (
     Dataset,
 )
 from .errors import UserError
-from .models import ModelConfig, make_model
+from .models import ModelConfig, ensure_dtype, make_model
 
 # ------------------------------------------------------------------------------ run layout
 
@@ -125,11 +125,7 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
         return load_run(run_dir / f"{ckpt.MEMBER_PREFIX}{member}")
     mcfg = ModelConfig.from_dict(info["model"])
     tcfg = TrainConfig.from_dict(info["train"])
-    if mcfg.dtype == "float64" and not jax.config.jax_enable_x64:
-        raise UserError(
-            f"run {run_dir} holds a float64 model: call "
-            "jax.config.update('jax_enable_x64', True) before loading it"
-        )
+    ensure_dtype(mcfg.dtype)
     like = eqx.filter(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)
     path = run_dir / "model.eqx"
     if not path.is_file():

@@ -20,7 +20,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 
 from . import checkpoint as ckpt
@@ -34,6 +33,7 @@ from .data import (
 )
 from .ensemble import MemberGroup, MemberResult, TrainingDiverged, finish_member
 from .errors import UserError
+from .models import ensure_dtype
 from .programs import PROGRAMS, ProgramCache, resolve_ensemble_mode, to_pairs, to_windows
 from .rundir import (
     LoadedRun,
@@ -142,12 +142,8 @@ def train(
             f"--resume: {data.path} is not the dataset the run in {run_dir} was trained on "
             f"(sha256 differs from {stored['dataset']['path']})"
         )
+    ensure_dtype(config.model.dtype)
     dtype = jnp.dtype(config.model.dtype)
-    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
-        raise UserError(
-            "float64 training needs jax.config.update('jax_enable_x64', True) before any array "
-            "is created (or use --float32)"
-        )
 
     train_ids, test_ids = split_trajectories(
         data, test=config.test_trajectories, seed=config.split_seed
@@ -171,7 +167,7 @@ def train(
             train_np = train_np._replace(xdot0=None)
             test_np = test_np._replace(xdot0=None)
         train_pairs, test_pairs = to_pairs(train_np, dtype), to_pairs(test_np, dtype)
-    batch = min(config.batch_size, train_np.count)
+    batch = config.batch_for(train_np.count)
 
     prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch)
 

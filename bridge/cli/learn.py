@@ -25,7 +25,8 @@ def register(subparsers) -> None:
     p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
     p.add_argument("--epochs", type=int, default=1000)
-    p.add_argument("--batch-size", type=int, default=1024)
+    p.add_argument("--batch-size", type=int, default=None,
+                   help="minibatch size (pairs per optimizer step; default: max(64, pairs // 100))")
     p.add_argument("--lr", type=float, default=1e-3, help="peak learning rate (default 1e-3)")
     p.add_argument("--schedule", choices=("cosine", "exponential", "constant"), default="cosine")
     p.add_argument("--warmup", type=float, default=0.02, help="warmup fraction of all steps")
@@ -239,30 +240,55 @@ class LbfgsBar:
 
 class _Bar:
     """tqdm progress bar (stderr) driven by the training callback; the L-BFGS finish gets a
-    bar of its own (:class:`LbfgsBar`)."""
+    bar of its own (:class:`LbfgsBar`).
+
+    :meth:`start` draws it before training starts, saying "compiling": the first epoch's call
+    traces and compiles the programs (seconds to a minute). Once it returns, the bar says
+    "training" and restarts its clock, so that its rate and ETA count training alone (the
+    compile time is shown beside them)."""
 
     def __init__(self, total: int, disable: bool):
         self.total, self.disable = total, disable
-        self.bar = None  # drawn at the first epoch, so that an early error prints alone
+        self.bar = None
+        self.compiling = False
+        self.compile_s = None
         self.last = {}
         self.lbfgs = LbfgsBar(disable)
+
+    def start(self):
+        from tqdm.auto import tqdm
+
+        self.bar = tqdm(total=self.total, file=sys.stderr, disable=self.disable,
+                        unit="epoch", dynamic_ncols=True, desc="compiling")
+        self.compiling = True
+
+    def _started_training(self):
+        """The first epoch returned: restart the clock after the compile."""
+        b = self.bar
+        self.compile_s = b._time() - b.start_t
+        b.set_description("training", refresh=False)
+        b.initial = b.n
+        b.start_t = b.last_print_t = b._time()
+        b.last_print_n = b.n
+        self.compiling = False
 
     def __call__(self, info: dict):
         if info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
             self.lbfgs(info)
             return
         if self.bar is None:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=self.total, file=sys.stderr, disable=self.disable,
-                            unit="epoch", dynamic_ncols=True)
+            self.start()
         key = info["label"]
         prev = self.last.get(key, 0)
         if info["phase"] == "adamw":
             self.bar.update(max(0, info["epoch"] - prev))
             self.last[key] = info["epoch"]
+            if self.compiling:
+                self._started_training()
         te = info["test_loss"]
         post = {"seed": key, "train": f"{min(info['train_loss']):.3e}"}
+        if self.compile_s is not None:
+            post["compile"] = f"{self.compile_s:.1f}s"
         if te is not None:
             post["test"] = f"{min(te):.3e}"
         if info["phase"] != "adamw":
@@ -272,6 +298,8 @@ class _Bar:
     def close(self):
         self.lbfgs.close()
         if self.bar is not None:
+            if self.compiling:  # stopped before any epoch (an error): leave no bar behind
+                self.bar.leave = False
             self.bar.close()
 
 
@@ -324,6 +352,7 @@ def cmd_train(args) -> int:
             lbfgs_steps=args.lbfgs_steps,
         )
     bar = _Bar(config.epochs * config.seeds, disable=args.quiet)
+    bar.start()
     try:
         result = train(
             data,

@@ -31,7 +31,7 @@ import os
 import platform
 import time
 from collections.abc import Callable
-from dataclasses import field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -51,6 +51,7 @@ from .stages import (
 )
 
 
+@dataclass
 class ReproduceResult:
     """What :func:`reproduce` returns: paths and every figure it measured."""
 
