@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 MODEL_KINDS = ("lagrangian", "hamiltonian", "blackbox", "lagrangian-hessian")
 NETS = ("mass", "potential", "damping", "input", "hidden")
@@ -265,12 +266,14 @@ class _Bar:
     def _started_training(self):
         """The first epoch returned: restart the clock after the compile."""
         b = self.bar
-        self.compile_s = b._time() - b.start_t
+        self.compiling = False
+        if b.disable:
+            return
+        self.compile_s = time.time() - b.start_t
         b.set_description("training", refresh=False)
         b.initial = b.n
-        b.start_t = b.last_print_t = b._time()
+        b.start_t = b.last_print_t = time.time()
         b.last_print_n = b.n
-        self.compiling = False
 
     def __call__(self, info: dict):
         if info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
