@@ -35,7 +35,7 @@ import casadi as ca
 
 from .errors import UserError
 
-#: Compiler flags: -O1 compiles 1.5-6x faster than -O2 and runs as fast (DESIGN.md, pitfalls).
+#: Compiler flags: -O1 compiles 1.5-6x faster than -O2 and runs as fast (docs/pitfalls.md).
 DEFAULT_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 DEFAULT_TIMEOUT = 600.0
 
@@ -167,7 +167,7 @@ def load_external(
     """Load every function back from ``library`` with ``casadi.external`` (absolute path).
 
     ``enable_fd`` lets CasADi differentiate a loaded function by finite differences (the
-    integrator's Jacobian; DESIGN.md pitfalls: an exact Jacobian as C is too big to compile).
+    integrator's Jacobian; docs/pitfalls.md: an exact Jacobian as C is too big to compile).
     """
     path = str(Path(library).absolute())
     opts = {"enable_fd": True} if enable_fd else {}

@@ -7,7 +7,7 @@ function of time (:mod:`symbolic.signals`), evaluated exactly inside the integra
 * ``cvodes`` (SUNDIALS, variable step, BDF with Newton iterations; CasADi's
   ``integrator(name, "cvodes", dae, t0, grid, opts)``) with the outputs on a fixed-rate grid.
   The Jacobian of the compiled ode comes from finite differences (``enable_fd``): an exact
-  Jacobian generated as C is too large to compile for two segments (DESIGN.md, pitfalls);
+  Jacobian generated as C is too large to compile for two segments (docs/pitfalls.md);
 * ``rk4``: fixed-step classical Runge-Kutta with step ``dt`` (the paper's Task 5 fixed-step
   data, dt = 0.0002 s), outputs decimated to the output rate. The steps are a CasADi
   ``mapaccum`` of ``mapaccum`` (no Python loop per step).

@@ -206,7 +206,7 @@ def test_delta_is_smooth_at_zero_curvature():
 
 
 def test_phi_theta_mass_matrix_loses_rank_at_zero_curvature():
-    """The known singularity of the phi-theta parameterization (DESIGN.md): the phi column
+    """The known singularity of the phi-theta parameterization (docs/pitfalls.md): the phi column
     vanishes at theta = 0 while values stay finite."""
     tm = TrueModel(make_spec(1, "phi-theta"))
     M = tm.M(np.array([0.4, 0.0, 0.0]))

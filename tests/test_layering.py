@@ -144,3 +144,21 @@ def test_every_subpackage_is_installed():
             found.add(".".join(("softpinn", *rel)))
     assert found - listed == set(), f"not in pyproject packages: {sorted(found - listed)}"
     assert listed - found == set(), f"listed but missing: {sorted(listed - found)}"
+
+
+def test_every_cli_flag_has_help_and_shows_its_default():
+    """Each subcommand's options carry help text, and --help shows the defaults."""
+    import argparse
+
+    from softpinn.bridge.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert {"train", "simulate", "reproduce", "export"} <= set(sub.choices)
+    for name, command in sub.choices.items():
+        missing = [a.option_strings or a.dest for a in command._actions
+                   if not a.help and a.dest != "help"]
+        assert missing == [], f"softpinn {name}: options without help: {missing}"
+        assert issubclass(command.formatter_class, argparse.ArgumentDefaultsHelpFormatter)
+    text = sub.choices["train"].format_help()
+    assert "(default: 1000)" in text and "(default: None)" not in text

@@ -1,7 +1,7 @@
 """The planar thin-rod PCC model (eqs. 27-28, task 3) against a SymPy closed-form derivation.
 
 SymPy integrates the energies over zeta exactly; its Piecewise theta = 0 branch is wrong for
-this model (DESIGN.md), so the comparison is at theta != 0, evaluated in 50-digit arithmetic
+this model (docs/pitfalls.md), so the comparison is at theta != 0, evaluated in 50-digit arithmetic
 to keep the closed forms free of cancellation."""
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ import pytest
 
 from softpinn.symbolic import TrueModel
 
-# the package ships a copy of ../shared/paper/tables.json (tests/test_report_tables.py checks
-# that the copy carries the paper's numbers), so the test does not depend on where shared/ is
+# the paper's tables as the package ships them (transcribed and corrected;
+# tests/test_report_tables.py checks the report reads the same numbers)
 TABLES = Path(__file__).resolve().parents[1] / "bridge" / "report" / "paper_tables.json"
 DATA = json.loads(TABLES.read_text())
 

@@ -29,6 +29,17 @@ class Parser(argparse.ArgumentParser):
         raise SystemExit(2)
 
 
+class DefaultsFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default, unless the help says it already (options
+    whose default is worked out from the data or the spec) or there is none to show."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if action.default in (None, False) or "default" in text:
+            return text
+        return super()._get_help_string(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = Parser(
         prog="softpinn",
@@ -41,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    for command in sub.choices.values():  # every --help shows every default
+        command.formatter_class = DefaultsFormatter
     return parser
 
 

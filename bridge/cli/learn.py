@@ -25,14 +25,17 @@ def register(subparsers) -> None:
     p.add_argument("data", metavar="DATA.npz", help="dataset file")
     p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
-    p.add_argument("--epochs", type=int, default=1000)
+    p.add_argument("--epochs", type=int, default=1000,
+                   help="passes over the training pairs (AdamW)")
     p.add_argument("--batch-size", type=int, default=None,
                    help="minibatch size (pairs per optimizer step; default: max(64, pairs // 100))")
-    p.add_argument("--lr", type=float, default=1e-3, help="peak learning rate (default 1e-3)")
-    p.add_argument("--schedule", choices=("cosine", "exponential", "constant"), default="cosine")
+    p.add_argument("--lr", type=float, default=1e-3, help="peak learning rate")
+    p.add_argument("--schedule", choices=("cosine", "exponential", "constant"), default="cosine",
+                   help="learning-rate schedule after the warmup")
     p.add_argument("--warmup", type=float, default=0.02, help="warmup fraction of all steps")
     p.add_argument("--lr-final", type=float, default=0.01, help="final lr as a fraction of --lr")
-    p.add_argument("--weight-decay", type=float, default=1e-4)
+    p.add_argument("--weight-decay", type=float, default=1e-4,
+                   help="AdamW weight decay")
     p.add_argument("--clip-norm", type=float, default=0.0, help="global gradient-norm clip")
     p.add_argument(
         "--loss",
@@ -55,10 +58,13 @@ def register(subparsers) -> None:
         help="steps per window of --loss rollout (multi-step loss)",
     )
     p.add_argument("--substeps", type=int, default=1, help="RK4 sub-steps per pair")
-    p.add_argument("--input-hold", choices=("constant", "linear"), default="constant")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--input-hold", choices=("constant", "linear"), default="constant",
+                   help="the input between two samples: held or interpolated linearly")
+    p.add_argument("--seed", type=int, default=0,
+                   help="seed of the network initialisation and minibatch order")
     p.add_argument("--seeds", type=int, default=1, help="ensemble size K (seeds S..S+K-1)")
-    p.add_argument("--ensemble", choices=("auto", "vmap", "sequential"), default="auto")
+    p.add_argument("--ensemble", choices=("auto", "vmap", "sequential"), default="auto",
+                   help="train the seeds as one stacked model (vmap) or one after another")
     p.add_argument(
         "--test-trajectories",
         type=int,
@@ -74,7 +80,8 @@ def register(subparsers) -> None:
         metavar="K",
         help="hold out K trajectories drawn at random",
     )
-    p.add_argument("--split-seed", type=int, default=0)
+    p.add_argument("--split-seed", type=int, default=0,
+                   help="seed of the random train/test split of trajectories")
     p.add_argument(
         "--samples", type=int, default=None, help="train on N randomly chosen pairs (default: all)"
     )
@@ -89,9 +96,12 @@ def register(subparsers) -> None:
             default=None,
             help=f"width and depth of the {net} network",
         )
-    p.add_argument("--activation", default="softplus")
-    p.add_argument("--damping-form", choices=("network", "constant", "none"), default="network")
-    p.add_argument("--input-form", choices=("network", "constant"), default="network")
+    p.add_argument("--activation", default="softplus",
+                   help="activation of every sub-network (softplus, tanh, ...)")
+    p.add_argument("--damping-form", choices=("network", "constant", "none"), default="network",
+                   help="D(q): a network, a learned constant, or none")
+    p.add_argument("--input-form", choices=("network", "constant"), default="network",
+                   help="A(q): a network or a learned constant")
     p.add_argument("--eps", type=float, default=1e-3, help="Cholesky diagonal shift of M")
     p.add_argument(
         "--mass-init",
@@ -108,8 +118,10 @@ def register(subparsers) -> None:
     )
     p.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
     p.add_argument("--patience", type=int, default=None, help="early-stopping patience")
-    p.add_argument("--eval-every", type=int, default=1)
-    p.add_argument("--checkpoint-every", type=int, default=25)
+    p.add_argument("--eval-every", type=int, default=1,
+                   help="evaluate the test loss every N epochs")
+    p.add_argument("--checkpoint-every", type=int, default=25,
+                   help="write a checkpoint every N epochs")
     p.add_argument("--lbfgs-steps", type=int, default=0, help="L-BFGS finish iterations")
     p.add_argument(
         "--resume", action="store_true", help="continue the run in --out with its stored options"
@@ -130,7 +142,8 @@ def register(subparsers) -> None:
     )
     q.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
     q.add_argument("data", metavar="DATA.npz", help="dataset file")
-    q.add_argument("--horizon", type=float, required=True, metavar="S")
+    q.add_argument("--horizon", type=float, required=True, metavar="S",
+                   help="rollout length [s] from each test trajectory's start")
     q.add_argument(
         "--reset-every",
         type=float,

@@ -70,7 +70,8 @@ def register(subparsers) -> None:
         "library (gcc -O1), save CasADi serialized functions and summary.json (expression "
         "sizes and timings).",
     )
-    p.add_argument("model", metavar="MODEL")
+    p.add_argument("model", metavar="MODEL",
+                   help="preset name (see 'softpinn models') or spec file")
     p.add_argument("--out", metavar="DIR", help="output directory (default ./<name>-eom)")
     p.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
     p.add_argument(
@@ -101,7 +102,8 @@ def register(subparsers) -> None:
         "RK4) and write a dataset file. Defaults come from the preset's [data] table (the "
         "paper's settings).",
     )
-    p.add_argument("model", metavar="MODEL")
+    p.add_argument("model", metavar="MODEL",
+                   help="preset name (see 'softpinn models') or spec file")
     p.add_argument("--out", required=True, metavar="FILE.npz", help="dataset file to write")
     p.add_argument("--trajectories", type=int, metavar="K", help="number of trajectories")
     p.add_argument("--duration", type=float, metavar="S", help="seconds per trajectory")
