@@ -346,10 +346,16 @@ def _structurally_zero(part: Part, key: str) -> bool:
     return bool(check()) if check else False
 
 
+def functions_of(model: SymbolicModel) -> dict[str, ca.Function]:
+    """The Functions of an already derived model (:func:`symbolic.eom.derive`), keyed as in
+    :data:`SIGNATURES`: wraps its expressions, derives nothing again."""
+    builder = _Builder(model)
+    return {key: builder.build(key) for key in SIGNATURES}
+
+
 @lru_cache(maxsize=32)
 def _functions(spec: ModelSpec, order: int) -> dict[str, ca.Function]:
-    builder = _Builder(derive(spec, order))
-    return {key: builder.build(key) for key in SIGNATURES}
+    return functions_of(derive(spec, order))
 
 
 def functions(model: str | Path | ModelSpec, order: int | None = None) -> dict[str, ca.Function]:
@@ -372,4 +378,11 @@ def function_sizes(fns: dict[str, ca.Function]) -> dict[str, int]:
     return out
 
 
-__all__ = ["SIGNATURES", "function_sizes", "functions", "safe_name", "spd_solve_function"]
+__all__ = [
+    "SIGNATURES",
+    "function_sizes",
+    "functions",
+    "functions_of",
+    "safe_name",
+    "spd_solve_function",
+]

@@ -229,7 +229,7 @@ def cmd_matrices(args) -> int:
 def cmd_derive(args) -> int:
     from softpinn.symbolic.codegen import generate
     from softpinn.symbolic.eom import derive
-    from softpinn.symbolic.functions import functions
+    from softpinn.symbolic.functions import functions_of
     from softpinn.symbolic.spec import load_spec
 
     spec = load_spec(args.model)
@@ -248,10 +248,10 @@ def cmd_derive(args) -> int:
     if args.timeout <= 0:
         raise UserError(f"--timeout: must be positive, got {args.timeout}")
     t0 = time.perf_counter()
-    derive(spec)
+    model = derive(spec)
     t_derive = time.perf_counter() - t0
     t0 = time.perf_counter()
-    fns = functions(spec)
+    fns = functions_of(model)  # the model derived above, not a second derivation
     t_functions = time.perf_counter() - t0
     with _warnings_as_lines():
         summary = generate(
