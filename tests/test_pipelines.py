@@ -291,6 +291,12 @@ def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
                  "--out", str(tmp_path / "f"), "--json"]) == 0
     payload = json.loads(capsys.readouterr().out)
     assert payload["forces"] is None and payload["accelerations"] is None
+    # without --json, analyze ends with its headline: each transform's status and residuals
+    assert main(["analyze", str(run), "task1", "--samples", "0", "--transform", "alpha",
+                 "pointwise", "--out", str(tmp_path / "h")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("alpha: ") and "alpha = " in lines[0] and " %" in lines[0]
+    assert lines[1].startswith("pointwise: ") and lines[-1].startswith("wrote ")
     assert main(["analyze", str(run), "task1", "--samples", "-1", "--out",
                  str(tmp_path / "g")]) == 2
     assert "--samples" in _err(capsys)

@@ -104,8 +104,21 @@ def cmd_analyze(args) -> int:
     if args.json:
         print(json.dumps(result.to_dict()))
     else:
+        for line in _headline(result):
+            print(line)
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
+
+
+def _headline(result) -> list[str]:
+    """One line per transform: its status and residual per matrix, in percent (alpha too)."""
+    lines = []
+    for name, r in result.results.items():
+        res = ", ".join(f"{k} {100 * v:.2g} %" for k, v in r.residual.items()
+                        if v is not None and v == v)
+        alpha = f", alpha = {r.alpha:.4g}" if name == "alpha" and r.alpha is not None else ""
+        lines.append(f"{name}: {r.status}{alpha}; residual {res}")
+    return lines
 
 
 def _force_samples(run, data_path, count, transforms):
