@@ -104,19 +104,23 @@ class TrainConfig:
         for name in pos_int + ("lbfgs_chunk",):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"--{name.replace('_', '-')} must be an integer >= 1, got {v!r}")
+                raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
         for name in ("lbfgs_steps", "seed", "split_seed"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-                raise UserError(f"--{name.replace('_', '-')} must be an integer >= 0, got {v!r}")
-        if not (self.lr > 0 and math.isfinite(self.lr)):
-            raise UserError(f"--lr must be a positive number, got {self.lr!r}")
+                raise UserError(f"{name}: expected an integer >= 0, got {v!r}")
+        if isinstance(self.lr, bool) or not isinstance(self.lr, (int, float)) or not (
+                self.lr > 0 and math.isfinite(self.lr)):
+            raise UserError(f"lr: expected a finite number > 0, got {self.lr!r}")
         if not 0 <= self.warmup < 1:
-            raise UserError(f"warmup must be a fraction in [0, 1), got {self.warmup!r}")
+            raise UserError(f"warmup: expected a fraction in [0, 1), got {self.warmup!r}")
         if not 0 < self.lr_final <= 1:
-            raise UserError(f"lr_final must be in (0, 1], got {self.lr_final!r}")
-        if self.weight_decay < 0 or self.clip_norm < 0 or self.loss_weight < 0:
-            raise UserError("weight_decay, clip_norm and loss_weight must be >= 0")
+            raise UserError(f"lr_final: expected a number in (0, 1], got {self.lr_final!r}")
+        for name in ("weight_decay", "clip_norm", "loss_weight"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
+                    math.isfinite(v) and v >= 0):
+                raise UserError(f"{name}: expected a finite number >= 0, got {v!r}")
         for name, allowed in (
             ("schedule", SCHEDULES),
             ("loss", LOSSES),
@@ -126,22 +130,21 @@ class TrainConfig:
         ):
             if getattr(self, name) not in allowed:
                 raise UserError(
-                    f"--{name.replace('_', '-')} must be one of {list(allowed)}, "
-                    f"got {getattr(self, name)!r}"
+                    f"{name}: expected one of {list(allowed)}, got {getattr(self, name)!r}"
                 )
         if self.patience is not None and (not isinstance(self.patience, int) or self.patience < 1):
-            raise UserError(f"--patience must be an integer >= 1, got {self.patience!r}")
+            raise UserError(f"patience: expected an integer >= 1, got {self.patience!r}")
         if self.samples is not None and (not isinstance(self.samples, int) or self.samples < 1):
-            raise UserError(f"--samples must be an integer >= 1, got {self.samples!r}")
+            raise UserError(f"samples: expected an integer >= 1, got {self.samples!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
         if self.accel_labels != "recorded" and self.loss != "accel":
             raise UserError(
-                f"--accel-labels {self.accel_labels} is for --loss accel, not --loss {self.loss}"
+                f"accel_labels: {self.accel_labels!r} is for loss 'accel', not {self.loss!r}"
             )
         if self.loss == "accel" and self.model.state_kind != "velocity":
             raise UserError(
-                "--loss accel (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
+                "loss: 'accel' (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
                 f"a {self.model.kind} model uses the {self.model.state_kind} state"
             )
 

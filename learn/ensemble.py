@@ -291,7 +291,7 @@ class MemberGroup:
         return (
             f"training stopped: the loss became NaN/inf ({'; '.join(which)}); "
             f"the last good checkpoint is kept in {self.ckpt_path.parent}; "
-            "try a smaller --lr or --float64"
+            "try a smaller lr, or float64 if the model is float32"
         )
 
     def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None):

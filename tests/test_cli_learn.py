@@ -120,7 +120,10 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
     assert main(["train", str(data), "--out", str(tmp_path / "x"), "--quiet"]) == 2
     assert "--model is required" in _error_line(capsys)
     assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--epochs", "0"]) == 2
-    assert "--epochs must be an integer >= 1, got 0" in _error_line(capsys)
+    # the library names the field (epochs: ...), the CLI the flag the user typed
+    assert "--epochs: expected an integer >= 1, got 0" in _error_line(capsys)
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--lr", "nan"]) == 2
+    assert "--lr: expected a finite number > 0, got nan" in _error_line(capsys)
     assert main(["predict", str(run), str(data), "--horizon", "-1"]) == 2
     assert "--horizon must be a positive number" in _error_line(capsys)
     assert main(["predict", str(tmp_path / "nope"), str(data), "--horizon", "1"]) == 2

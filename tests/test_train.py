@@ -263,16 +263,23 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
 
 
 def test_bad_config_values():
-    with pytest.raises(UserError, match="--epochs must be an integer >= 1, got 0"):
+    with pytest.raises(UserError, match="epochs: expected an integer >= 1, got 0"):
         blackbox_train_config(epochs=0)
-    with pytest.raises(UserError, match="--schedule must be one of"):
+    with pytest.raises(UserError, match="schedule: expected one of"):
         blackbox_train_config(schedule="linear")
-    with pytest.raises(UserError, match="--lr must be a positive number"):
+    with pytest.raises(UserError, match="lr: expected a finite number > 0"):
         blackbox_train_config(lr=-1.0)
-    with pytest.raises(UserError, match="--accel-labels must be one of"):
+    with pytest.raises(UserError, match="accel_labels: expected one of"):
         blackbox_train_config(loss="accel", accel_labels="smoothed")
-    with pytest.raises(UserError, match="--accel-labels differences is for --loss accel, not "
-                                        "--loss pair"):
+    with pytest.raises(UserError, match="accel_labels: 'differences' is for loss 'accel', not "
+                                        "'pair'"):
         blackbox_train_config(accel_labels="differences")
+    # non-finite values are refused where they enter, naming the field
+    for name in ("lr", "weight_decay", "clip_norm", "loss_weight"):
+        for bad in (float("nan"), float("inf")):
+            with pytest.raises(UserError, match=rf"{name}: expected a finite number"):
+                blackbox_train_config(**{name: bad})
+    with pytest.raises(UserError, match="warmup: expected a fraction"):
+        blackbox_train_config(warmup=float("nan"))
     cfg = blackbox_train_config(test_trajectories=[1, 2])
     assert TrainConfig.from_dict(cfg.to_dict()) == cfg

@@ -61,6 +61,23 @@ def is_user_error(exc: BaseException) -> bool:
     return bool(getattr(type(exc), "softpinn_user_error", False))
 
 
+def _as_flag(message: str, parser: argparse.ArgumentParser, args) -> str:
+    """Library errors name settings by their field (``lr: expected ...``); on the command line
+    the user typed a flag, so a message that starts with a field of the running command's
+    options names that flag instead (``--lr: expected ...``)."""
+    field, sep, rest = message.partition(": ")
+    if not sep or not field.isidentifier():
+        return message
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    command = sub.choices.get(getattr(args, "command", None))
+    if command is None:
+        return message
+    for action in command._actions:
+        if action.dest == field and action.option_strings:
+            return f"{action.option_strings[0]}: {rest}"
+    return message
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -71,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     except Exception as exc:
         if is_user_error(exc):
-            message = " ".join(str(exc).split())
+            message = _as_flag(" ".join(str(exc).split()), parser, args)
             print(f"softpinn: error: {message}", file=sys.stderr)
             return 2
         raise
