@@ -21,6 +21,9 @@ FORMAT_VERSION = 1
 SCHEDULES = ("cosine", "exponential", "constant")
 LOSSES = ("pair", "accel", "rollout")
 ENSEMBLE_MODES = ("auto", "vmap", "sequential")
+SEED_MAX = 2**32 - 1
+#: Settings that may change when a run is resumed (the others would make it another run).
+RESUMABLE = ("epochs", "patience", "eval_every", "checkpoint_every", "lbfgs_steps", "lbfgs_chunk")
 
 
 class TrainingDiverged(UserError):
@@ -109,6 +112,13 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise UserError(f"{name}: expected an integer >= 0, got {v!r}")
+        # seeds become 32-bit PRNG keys (seed, seed + 1, ..., seed + seeds - 1)
+        for name, top in (("seed", SEED_MAX - (self.seeds - 1)), ("split_seed", SEED_MAX)):
+            if getattr(self, name) > top:
+                raise UserError(
+                    f"{name}: expected an integer <= {top} (seeds are 32-bit), "
+                    f"got {getattr(self, name)!r}"
+                )
         if isinstance(self.lr, bool) or not isinstance(self.lr, (int, float)) or not (
                 self.lr > 0 and math.isfinite(self.lr)):
             raise UserError(f"lr: expected a finite number > 0, got {self.lr!r}")
@@ -132,9 +142,13 @@ class TrainConfig:
                 raise UserError(
                     f"{name}: expected one of {list(allowed)}, got {getattr(self, name)!r}"
                 )
-        if self.patience is not None and (not isinstance(self.patience, int) or self.patience < 1):
+        if self.patience is not None and (
+                isinstance(self.patience, bool) or not isinstance(self.patience, int)
+                or self.patience < 1):
             raise UserError(f"patience: expected an integer >= 1, got {self.patience!r}")
-        if self.samples is not None and (not isinstance(self.samples, int) or self.samples < 1):
+        if self.samples is not None and (
+                isinstance(self.samples, bool) or not isinstance(self.samples, int)
+                or self.samples < 1):
             raise UserError(f"samples: expected an integer >= 1, got {self.samples!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))

@@ -26,6 +26,11 @@ class TrainingDiverged(UserError):
     """The loss became NaN or inf; the last good checkpoint is kept."""
 
 
+class NonFiniteStart(TrainingDiverged):
+    """The untrained model's loss is already NaN or inf: nothing can be trained (a fresh run
+    leaves no files behind)."""
+
+
 @dataclass
 class MemberResult:
     """The outcome of one seed: its run directory, best model and figures."""
@@ -120,7 +125,7 @@ class MemberGroup:
         }
 
     def save(self):
-        ckpt.save_tree(self.ckpt_path, self._tree(), self.header())
+        ckpt.save_tree(self.ckpt_path, self._tree(), self.header(), record=True)
 
     def restore(self):
         header, tree = ckpt.load_tree(self.ckpt_path, self._tree())
@@ -140,6 +145,27 @@ class MemberGroup:
         self.seconds = float(header["seconds"])
         self.adam_done = bool(header["adam_done"])
         self.lbfgs_done = int(header["lbfgs_done"])
+        self._reopen()
+
+    def _reopen(self):
+        """A resumed run asked for more epochs than it finished: the members that completed
+        their epochs train on (early-stopped and diverged ones stay stopped)."""
+        cfg = self.prog.config
+        if not (self.adam_done and self.epoch < cfg.epochs):
+            return
+        done = [k for k in range(self.K) if self.stopped[k].startswith("completed")]
+        if not done:
+            return
+        if self.lbfgs_done:
+            raise UserError(
+                f"epochs: the run in {self.ckpt_path.parent} ended with {self.lbfgs_done} L-BFGS "
+                f"iterations after {self.epoch} epochs; AdamW cannot continue after them "
+                "(train a new run for more epochs)"
+            )
+        for k in done:
+            self.active[k] = True
+            self.stopped[k] = "running"
+        self.adam_done = False
 
     @property
     def finished(self) -> bool:
@@ -204,7 +230,9 @@ class MemberGroup:
                 # epoch 0: the untrained model, on the full training and test sets
                 tr0 = np.asarray(prog.eval_train_fn(self.params))
                 te0 = np.asarray(prog.eval_fn(self.params))
-                self._record(0, tr0, te0, "adamw", True, self.params, self.opt_state)
+                bad0 = self._record(0, tr0, te0, "adamw", True, self.params, self.opt_state)
+                if bad0.any():
+                    raise NonFiniteStart(self._non_finite_start_message(tr0, te0, bad0))
                 if progress is not None:
                     progress(self._progress_info(label, 0, tr0, te0, "adamw"))
             while not self.adam_done and self.epoch < cfg.epochs and self.active.any():
@@ -294,6 +322,19 @@ class MemberGroup:
             "try a smaller lr, or float64 if the model is float32"
         )
 
+    def _non_finite_start_message(self, tr0, te0, bad0) -> str:
+        which = [
+            f"seed {s}: train loss {tr0[k]:.3g}, test loss {te0[k]:.3g}"
+            for k, s in enumerate(self.seeds)
+            if bad0[k]
+        ]
+        return (
+            "training cannot start: the untrained model's loss is not finite "
+            f"({'; '.join(which)}); "
+            "check the data's scale (values near 1e150 or more overflow the loss) and the model "
+            "settings (eps, mass_init)"
+        )
+
     def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None):
         return {
             "label": label,
@@ -333,9 +374,10 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test) -> Membe
         "train_pairs": n_train,
         "test_pairs": n_test,
     }
-    ckpt.save_tree(mdir / "model.eqx", eqx.filter(model, eqx.is_array), {"seed": seed})
-    ckpt.write_history(mdir / "history.csv", hist)
-    ckpt.atomic_write_json(mdir / "metrics.json", metrics)
+    ckpt.save_tree(mdir / "model.eqx", eqx.filter(model, eqx.is_array), {"seed": seed},
+                   record=True)
+    ckpt.write_history(mdir / "history.csv", hist, record=True)
+    ckpt.atomic_write_json(mdir / "metrics.json", metrics, record=True)
     loss_plot(mdir, [hist], None)
     return MemberResult(seed=seed, run_dir=mdir, model=model, metrics=metrics, history=hist)
 

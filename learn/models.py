@@ -126,8 +126,9 @@ class ModelConfig:
             raise UserError(
                 f"input_form must be one of {list(_INPUT_FORMS)}, got {self.input_form!r}"
             )
-        if not (isinstance(self.eps, int | float) and self.eps >= 0):
-            raise UserError(f"eps must be a number >= 0, got {self.eps!r}")
+        if isinstance(self.eps, bool) or not (
+                isinstance(self.eps, int | float) and math.isfinite(self.eps) and self.eps >= 0):
+            raise UserError(f"eps must be a finite number >= 0, got {self.eps!r}")
         set_("eps", float(self.eps))
         if self.mass_init is not None:
             ok = isinstance(self.mass_init, int | float) and not isinstance(self.mass_init, bool)

@@ -1,6 +1,10 @@
 """Plots of training and prediction: loss curves (like Figs. 21-22) and rollouts against the
 truth (like Figs. 8 and 23). Uses matplotlib's object API with the Agg canvas: no pyplot, no
-global backend state; every function writes one PNG atomically and returns its path."""
+global backend state; every function writes one PNG atomically and returns its path.
+
+Every PNG carries ``Software: softpinn`` in its metadata (:data:`SOFTWARE`), which is how
+:func:`written_by_softpinn` tells a plot softpinn may overwrite from a user's file. Non-finite
+values (a diverged rollout or loss) are left out of the curves, never passed to a log axis."""
 
 from __future__ import annotations
 
@@ -11,6 +15,44 @@ from pathlib import Path
 import numpy as np
 
 from .checkpoint import atomic_write_bytes
+from .errors import UserError
+
+SOFTWARE = "softpinn"
+_PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def written_by_softpinn(path: str | Path) -> bool:
+    """Whether ``path`` is a PNG that softpinn wrote (its metadata names softpinn)."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError:
+        return False
+    return head.startswith(_PNG) and b"Software\x00" + SOFTWARE.encode() in head
+
+
+def check_may_write(path: str | Path, *, force: bool = False) -> Path:
+    """Refuse to overwrite ``path`` unless it does not exist, is a plot softpinn wrote, or
+    ``force``; refuse a folder always."""
+    path = Path(path)
+    if path.is_dir():
+        raise UserError(f"plot: {path} is a folder, not a file")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"plot: {path}: {parent} is a file, not a folder")
+            break
+    if path.exists() and not force and not written_by_softpinn(path):
+        raise UserError(
+            f"plot: {path} exists and was not written by softpinn; refusing to overwrite it "
+            "(choose another file, or force it)"
+        )
+    return path
+
+
+def _finite(a) -> np.ndarray:
+    a = np.asarray(a, dtype=float)
+    return np.where(np.isfinite(a), a, np.nan)
 
 
 def _figure(rows: int = 1, cols: int = 1, *, size=(7.0, 4.0)):
@@ -23,10 +65,10 @@ def _figure(rows: int = 1, cols: int = 1, *, size=(7.0, 4.0)):
     return fig, axes
 
 
-def _save(fig, path: str | Path) -> Path:
+def _save(fig, path: str | Path, record: bool = False) -> Path:
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    return atomic_write_bytes(path, buf.getvalue())
+    fig.savefig(buf, format="png", dpi=110, metadata={"Software": SOFTWARE})
+    return atomic_write_bytes(path, buf.getvalue(), record=record)
 
 
 def plot_loss_curves(
@@ -35,6 +77,7 @@ def plot_loss_curves(
     *,
     labels: Sequence[str] | None = None,
     title: str = "training",
+    record: bool = False,
 ) -> Path:
     """Train (solid) and test (dashed) loss against epoch, log scale, one colour per run."""
     fig, axes = _figure()
@@ -43,8 +86,8 @@ def plot_loss_curves(
         if not hist:
             continue
         e = np.array([r["epoch"] for r in hist])
-        tr = np.array([r["train_loss"] for r in hist], dtype=float)
-        te = np.array([r["test_loss"] for r in hist], dtype=float)
+        tr = _finite([r["train_loss"] for r in hist])
+        te = _finite([r["test_loss"] for r in hist])
         lab = labels[i] if labels else None
         (line,) = ax.plot(e, tr, lw=1.2, label=f"train {lab}" if lab else "train")
         ax.plot(e, te, "--", lw=1.2, color=line.get_color(), label=f"test {lab}" if lab else "test")
@@ -53,9 +96,9 @@ def plot_loss_curves(
     ax.set_ylabel("loss")
     ax.set_title(title)
     ax.grid(True, which="both", alpha=0.3)
-    if len(histories) <= 8:
+    if len(histories) <= 8 and ax.get_lines():
         ax.legend(fontsize=8)
-    return _save(fig, path)
+    return _save(fig, path, record)
 
 
 def plot_rollout(
@@ -74,7 +117,7 @@ def plot_rollout(
     for i in range(n):
         ax = axes[i, 0]
         ax.plot(t, q_true[:, i], lw=1.4, label="true")
-        ax.plot(t, q_pred[:, i], "--", lw=1.4, label="predicted")
+        ax.plot(t, _finite(q_pred[:, i]), "--", lw=1.4, label="predicted")
         ax.set_ylabel(f"q{i + 1}")
         ax.grid(True, alpha=0.3)
         if resets is not None:
@@ -84,7 +127,8 @@ def plot_rollout(
     axes[0, 0].set_title(title)
     ax = axes[n, 0]
     # the error is zero at t0 (the true initial state): plot from the first step on
-    err = np.maximum(np.abs(q_pred - q_true)[1:], 1e-300)
+    with np.errstate(invalid="ignore", over="ignore"):
+        err = _finite(np.maximum(np.abs(q_pred - q_true)[1:], 1e-300))
     for i in range(n):
         ax.plot(t[1:], err[:, i], lw=1.0, label=f"|e{i + 1}|")
     ax.legend(fontsize=8)

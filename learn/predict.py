@@ -70,14 +70,45 @@ class PredictResult:
         }
 
 
+#: The most memory the arrays of one batched rollout may take (``dt`` far below the data's
+#: step multiplies the steps): checked before anything is allocated.
+MAX_ROLLOUT_BYTES = 2 * 2**30
+
+
 def _check_positive(name, value, *, allow_none=True):
     if value is None and allow_none:
         return None
-    if not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
-        raise UserError(
-            f"--{name.replace('_', '-')} must be a positive number of seconds, got {value!r}"
-        )
+    if (isinstance(value, bool) or not isinstance(value, int | float)
+            or not math.isfinite(value) or value <= 0):
+        raise UserError(f"{name}: expected a positive number of seconds, got {value!r}")
     return float(value)
+
+
+def check_rollout_request(trajs: list[dict], *, horizon: float, dt: float | None,
+                          n: int, m: int, itemsize: int) -> None:
+    """Refuse, before any work, a rollout request that cannot mean what it says: a horizon
+    longer than the longest trajectory (more than a sample step beyond it), a step longer
+    than the horizon, or so many steps that the arrays would exceed :data:`MAX_ROLLOUT_BYTES`."""
+    spans = [float(tr["t"][-1] - tr["t"][0]) for tr in trajs]
+    step = max(float(np.max(np.diff(tr["t"]))) if tr["t"].size > 1 else 0.0 for tr in trajs)
+    longest = max(spans)
+    if horizon > longest + 1.5 * step + 1e-9:
+        raise UserError(
+            f"horizon: {horizon:g} s is longer than the trajectories ({longest:.6g} s at most, "
+            f"sample step {step:.3g} s); give at most {longest:.6g}"
+        )
+    if dt is None:
+        return
+    if dt > horizon:
+        raise UserError(f"dt: {dt:g} s is longer than the horizon ({horizon:g} s)")
+    steps = math.ceil(min(horizon, longest) / dt) + 1
+    need = len(trajs) * _bucket(steps) * (2 * (2 * n) + m + 1) * itemsize
+    if need > MAX_ROLLOUT_BYTES:
+        raise UserError(
+            f"dt: {dt:g} s makes {steps:.3g} steps per trajectory for {len(trajs)} trajectories "
+            f"(about {need / 2**30:.3g} GiB, the limit is {MAX_ROLLOUT_BYTES / 2**30:g} GiB); "
+            f"use a larger dt (the data's step is {step:.3g} s)"
+        )
 
 
 _pair_errors_static = eqx.filter_jit(
@@ -146,6 +177,8 @@ def rollouts(
     """
     n = model.config.n
     dtype = np.dtype(model.config.dtype)
+    check_rollout_request(trajs, horizon=horizon, dt=dt, n=n, m=model.config.m,
+                          itemsize=dtype.itemsize)
     grids = []
     for tr in trajs:
         t, x, u = tr["t"], tr["x"], tr["u"]
@@ -154,7 +187,7 @@ def rollouts(
         td, xd, ud = t[keep], x[keep], u[keep]
         if td.size < 2:
             raise UserError(
-                f"--horizon {horizon} s is shorter than the first step of trajectory {tr['id']}"
+                f"horizon: {horizon} s is shorter than the first step of trajectory {tr['id']}"
             )
         if dt is None:
             tg, ug, xg = td, ud, xd
@@ -218,9 +251,17 @@ def evaluate(
     substeps: int = 1,
     input_hold: str = "constant",
     plot: str | Path | None = None,
+    force: bool = False,
 ) -> PredictResult:
-    """One-step and rollout errors of ``model`` on trajectories ``traj_ids`` of ``data``."""
+    """One-step and rollout errors of ``model`` on trajectories ``traj_ids`` of ``data``.
+
+    ``plot``: a PNG to write; an existing file is overwritten only if softpinn wrote it (a
+    plot of an earlier call) or ``force``."""
     horizon = _check_positive("horizon", horizon, allow_none=False)
+    if plot is not None:
+        from .plots import check_may_write
+
+        check_may_write(plot, force=force)
     reset_every = _check_positive("reset_every", reset_every)
     dt = _check_positive("dt", dt)
     cfg = model.config
@@ -290,12 +331,13 @@ def predict(
     trajectories: str | list[int] = "auto",
     member: int | None = None,
     plot: str | Path | None = None,
+    force: bool = False,
 ) -> PredictResult:
     """Evaluate the model of a run directory on a dataset file.
 
     ``trajectories``: "auto" (the run's test trajectories when ``data`` is the file it was
     trained on, else every trajectory), "test", "all", or a list of ids. The one-step error uses
-    the run's loss settings (λ, sub-steps, input hold).
+    the run's loss settings (λ, sub-steps, input hold). ``plot``/``force``: see :func:`evaluate`.
     """
     from .rundir import load_run
 
@@ -332,6 +374,7 @@ def predict(
         substeps=tc.substeps,
         input_hold=tc.input_hold,
         plot=plot,
+        force=force,
     )
     res.extra = {
         "run": str(run.run_dir),

@@ -9,6 +9,7 @@ from typing import Any
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from . import checkpoint as ckpt
@@ -44,7 +45,8 @@ def mean_std(values) -> dict:
 def loss_plot(run_dir, histories, labels):
     from .plots import plot_loss_curves
 
-    plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=str(run_dir.name))
+    plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=str(run_dir.name),
+                     record=True)
 
 
 
@@ -104,7 +106,9 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
     """Load the best model of a run directory (``model.eqx`` + ``config.json``).
 
     For an ensemble directory, ``member`` picks the seed; None picks the member with the lowest
-    best test loss (from ``metrics.json``). A member folder ``RUN/seed-<s>`` loads directly.
+    best test loss (from ``metrics.json``). A member folder ``RUN/seed-<s>`` loads directly;
+    a single run refuses a ``member`` other than its seed. The model file's checksum is
+    verified, and its parameters must be finite.
     """
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -123,6 +127,10 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
         if member not in seeds:
             raise UserError(f"run {run_dir}: no member with seed {member} (seeds {seeds})")
         return load_run(run_dir / f"{ckpt.MEMBER_PREFIX}{member}")
+    if member is not None and member != info.get("seed"):
+        raise UserError(
+            f"member: run {run_dir} has one member (seed {info.get('seed')}), not seed {member}"
+        )
     mcfg = ModelConfig.from_dict(info["model"])
     tcfg = TrainConfig.from_dict(info["train"])
     ensure_dtype(mcfg.dtype)
@@ -131,6 +139,8 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
     if not path.is_file():
         raise UserError(f"run {run_dir}: no model.eqx yet (training not finished; --resume it)")
     _, params = ckpt.load_tree(path, like)
+    if not all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(params)):
+        raise UserError(f"{path}: the model's parameters are not all finite (NaN or inf)")
     static = eqx.partition(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)[1]
     return LoadedRun(
         model=eqx.combine(params, static),

@@ -23,7 +23,15 @@ from pathlib import Path
 import jax.numpy as jnp
 
 from . import checkpoint as ckpt
-from .config import ENSEMBLE_MODES, FORMAT, FORMAT_VERSION, LOSSES, SCHEDULES, TrainConfig
+from .config import (
+    ENSEMBLE_MODES,
+    FORMAT,
+    FORMAT_VERSION,
+    LOSSES,
+    RESUMABLE,
+    SCHEDULES,
+    TrainConfig,
+)
 from .data import (
     Dataset,
     load_dataset,
@@ -31,7 +39,13 @@ from .data import (
     make_windows,
     split_trajectories,
 )
-from .ensemble import MemberGroup, MemberResult, TrainingDiverged, finish_member
+from .ensemble import (
+    MemberGroup,
+    MemberResult,
+    NonFiniteStart,
+    TrainingDiverged,
+    finish_member,
+)
 from .errors import UserError
 from .models import ensure_dtype
 from .programs import PROGRAMS, ProgramCache, resolve_ensemble_mode, to_pairs, to_windows
@@ -78,6 +92,60 @@ class TrainResult:
         return min(self.members, key=lambda r: r.metrics["best_test_loss"]).model
 
 
+def _remove_run(run_dir: Path, seeds) -> None:
+    """Remove what a fresh run wrote (its manifests' files), e.g. when it could not start."""
+    for s in seeds if len(seeds) > 1 else []:
+        if member_dir(run_dir, s, len(seeds)).is_dir():
+            ckpt.remove_written(member_dir(run_dir, s, len(seeds)))
+    ckpt.remove_written(run_dir)
+
+
+def _member_groups(prog, seeds, mode, run_dir) -> list[MemberGroup]:
+    """One group of all members (vmap) or one group per member (sequential)."""
+    K = len(seeds)
+    if mode == "vmap":
+        return [MemberGroup(prog, seeds, run_dir / "checkpoint.eqx", {"format": FORMAT})]
+    return [
+        MemberGroup(prog, [s], member_dir(run_dir, s, K) / "checkpoint.eqx", {"format": FORMAT})
+        for s in seeds
+    ]
+
+
+# ---------------------------------------------------------------------------------- resume
+
+
+def resumed_config(stored: TrainConfig, given: TrainConfig, run_dir: Path) -> TrainConfig:
+    """The configuration a resumed run continues with: the stored one, with the settings of
+    :data:`learn.config.RESUMABLE` (epochs, patience, L-BFGS steps, ...) taken from ``given``.
+    Any other difference would make it another run: refused, naming every differing field."""
+    def differ(a, b, prefix=""):
+        return [
+            f"{prefix}{f.name} (run: {getattr(a, f.name)!r}, given: {getattr(b, f.name)!r})"
+            for f in dataclasses.fields(a)
+            if getattr(a, f.name) != getattr(b, f.name) and f.name != "model"
+        ]
+
+    other = [d for d in differ(stored, given) if d.split(" ")[0] not in RESUMABLE]
+    other += differ(stored.model, given.model, "model.")
+    if other:
+        raise UserError(
+            f"resume: {run_dir} was trained with other settings, which cannot change on resume: "
+            f"{'; '.join(other)} (only {', '.join(RESUMABLE)} may)"
+        )
+    return dataclasses.replace(stored, **{k: getattr(given, k) for k in RESUMABLE})
+
+
+def update_stored_config(run_dir: Path, stored: dict, config: TrainConfig) -> None:
+    """Record the resumed settings in the run's (and its members') config.json."""
+    ckpt.atomic_write_json(run_dir / "config.json", {**stored, "train": config.to_dict()},
+                           record=True)
+    for name in stored.get("members", []):
+        path = run_dir / name / "config.json"
+        if path.is_file():
+            info = ckpt.read_json(path)
+            ckpt.atomic_write_json(path, {**info, "train": config.to_dict()}, record=True)
+
+
 # ---------------------------------------------------------------------------------- train
 
 
@@ -97,7 +165,8 @@ def train(
     (everything needed to resume), ``history.csv``, ``metrics.json`` and ``loss.png``; an
     ensemble gets one such folder ``seed-<s>/`` per member and aggregate files on top.
     ``resume=True`` continues the run in ``out_dir`` from its last checkpoint with its stored
-    configuration (``config`` may be None; if given it must equal the stored one). An existing,
+    configuration (``config`` may be None; if given, it may differ from the stored one only in
+    :data:`learn.config.RESUMABLE`, e.g. more ``epochs``, which are honoured). An existing,
     non-empty ``out_dir`` is refused unless ``force`` or ``resume``. ``progress(info)`` is
     called after every epoch with a dict of losses (the CLI draws a progress bar from it).
     Raises :class:`TrainingDiverged` on a NaN/inf loss (the last good checkpoint is kept);
@@ -118,16 +187,9 @@ def train(
                 f"{stored_cfg.seeds}-member ensemble; resume the ensemble's directory "
                 f"({run_dir.parent} if this folder was not moved): its members resume together"
             )
-        if config is not None and config != stored_cfg:
-            diff = [
-                f.name
-                for f in dataclasses.fields(TrainConfig)
-                if getattr(config, f.name) != getattr(stored_cfg, f.name)
-            ]
-            raise UserError(
-                f"--resume: the options differ from the stored run in {run_dir} ({', '.join(diff)})"
-            )
-        config = stored_cfg
+        changed = config is not None and config != stored_cfg
+        config = resumed_config(stored_cfg, config, run_dir) if changed else stored_cfg
+        changed = config != stored_cfg
     elif config is None:
         raise UserError("train: a TrainConfig is needed unless resuming")
     if not isinstance(data, Dataset):
@@ -185,38 +247,40 @@ def train(
         "steps_per_epoch": prog.steps,
         "ensemble_mode": mode,
     }
-    if not resume:
-        top = dict(base)
-        if K > 1:
-            top["members"] = [f"{ckpt.MEMBER_PREFIX}{s}" for s in seeds]
-            top["seeds"] = seeds
-        else:
-            top["seed"] = seeds[0]
-        ckpt.atomic_write_json(run_dir / "config.json", top)
-        for s in seeds if K > 1 else []:
-            mdir = member_dir(run_dir, s, K)
-            mdir.mkdir(parents=True, exist_ok=True)
-            ckpt.atomic_write_json(mdir / "config.json", {**base, "seed": s})
-
-    groups = []
-    if mode == "vmap":
-        groups.append(MemberGroup(prog, seeds, run_dir / "checkpoint.eqx", {"format": FORMAT}))
-    else:
-        for s in seeds:
-            groups.append(
-                MemberGroup(prog, [s], member_dir(run_dir, s, K) / "checkpoint.eqx",
-                            {"format": FORMAT})
-            )
+    try:
+        if not resume:
+            top = dict(base)
+            if K > 1:
+                top["members"] = [f"{ckpt.MEMBER_PREFIX}{s}" for s in seeds]
+                top["seeds"] = seeds
+            else:
+                top["seed"] = seeds[0]
+            ckpt.atomic_write_json(run_dir / "config.json", top, record=True)
+            for s in seeds if K > 1 else []:
+                mdir = member_dir(run_dir, s, K)
+                ckpt.atomic_write_json(mdir / "config.json", {**base, "seed": s}, record=True)
+        groups = _member_groups(prog, seeds, mode, run_dir)
+    except BaseException:
+        if not resume:  # nothing trained yet: leave nothing that blocks a rerun
+            _remove_run(run_dir, seeds)
+        raise
+    if resume:
+        for g in groups:
+            if g.ckpt_path.is_file():
+                g.restore()  # refuses settings the checkpoint cannot continue with
+        if changed:
+            update_stored_config(run_dir, stored, config)
 
     members: list[MemberResult] = []
     for g in groups:
-        if resume and g.ckpt_path.is_file():
-            g.restore()
         label = ",".join(str(s) for s in g.seeds)
         if not g.finished:
             try:
                 g.run(progress, label)
-            except (KeyboardInterrupt, TrainingDiverged):
+            except (KeyboardInterrupt, TrainingDiverged) as exc:
+                if isinstance(exc, NonFiniteStart) and not resume and not members:
+                    _remove_run(run_dir, seeds)  # nothing trained: nothing to block a rerun
+                    raise
                 # leave a loadable run: best model so far, history and metrics
                 for k, s in enumerate(g.seeds):
                     finish_member(g, k, s, run_dir, K, train_np.count, test_np.count)
@@ -226,8 +290,9 @@ def train(
 
     metrics = aggregate_metrics(members, mode, base)
     if K > 1:
-        ckpt.atomic_write_json(run_dir / "metrics.json", metrics)
-        ckpt.write_history(run_dir / "history.csv", mean_history([m.history for m in members]))
+        ckpt.atomic_write_json(run_dir / "metrics.json", metrics, record=True)
+        ckpt.write_history(run_dir / "history.csv", mean_history([m.history for m in members]),
+                          record=True)
         loss_plot(run_dir, [m.history for m in members], [f"seed {m.seed}" for m in members])
     return TrainResult(run_dir=run_dir, config=config, members=members, metrics=metrics)
 

@@ -125,7 +125,7 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
     assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--lr", "nan"]) == 2
     assert "--lr: expected a finite number > 0, got nan" in _error_line(capsys)
     assert main(["predict", str(run), str(data), "--horizon", "-1"]) == 2
-    assert "--horizon must be a positive number" in _error_line(capsys)
+    assert "--horizon: expected a positive number of seconds" in _error_line(capsys)
     assert main(["predict", str(tmp_path / "nope"), str(data), "--horizon", "1"]) == 2
     assert "no such directory" in _error_line(capsys)
     pend = make_dataset(tmp_path / "pend.npz", "pendulum", trajectories=2, duration=1.0)

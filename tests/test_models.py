@@ -301,6 +301,8 @@ def test_config_json_round_trip():
         ({"damping_form": "rayleigh"}, "damping_form must be one of"),
         ({"input_form": "table"}, "input_form must be one of"),
         ({"eps": -1.0}, "eps must be"),
+        ({"eps": float("inf")}, "eps must be a finite number >= 0, got inf"),
+        ({"eps": float("nan")}, "eps must be a finite number >= 0, got nan"),
         ({"mass_init": 0.0}, "mass_init must be a number > 0 or None"),
         ({"mass_init": float("nan")}, "mass_init must be a number > 0 or None"),
         ({"mass_init": True}, "mass_init must be a number > 0 or None"),

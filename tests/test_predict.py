@@ -115,7 +115,7 @@ def test_variable_step_data_and_padding(tmp_path):
     res = evaluate(ExactMSD(CFG), ds, [0, 1], horizon=2.0)
     assert res.rollout_error_mean < 1e-7  # one RK4 step spans the 0.25 s gap
     assert [r["t"].size for r in res.rollouts] == [37, 41]
-    with pytest.raises(UserError, match="--horizon 0.01 s is shorter than the first step"):
+    with pytest.raises(UserError, match="horizon: 0.01 s is shorter than the first step"):
         rollouts(ExactMSD(CFG), trajectories(ds, [0]), horizon=0.01)
 
 
@@ -150,5 +150,5 @@ def test_predict_on_run_dir_and_plot(msd, tmp_path):
     pend = make_dataset(tmp_path / "pend.npz", "pendulum", trajectories=2, duration=1.0)
     with pytest.raises(UserError, match="model has n=2 coordinates, the file has n=1"):
         predict(tmp_path / "run", pend, horizon=1.0)
-    with pytest.raises(UserError, match="--horizon must be a positive number"):
+    with pytest.raises(UserError, match="horizon: expected a positive number of seconds"):
         predict(tmp_path / "run", msd.path, horizon=0.0)

@@ -124,12 +124,16 @@ def register(subparsers) -> None:
                    help="write a checkpoint every N epochs")
     p.add_argument("--lbfgs-steps", type=int, default=0, help="L-BFGS finish iterations")
     p.add_argument(
-        "--resume", action="store_true", help="continue the run in --out with its stored options"
+        "--resume", action="store_true",
+        help="continue the run in --out with its stored options; of the options given again, "
+        "--epochs, --patience, --eval-every, --checkpoint-every and --lbfgs-steps may change, "
+        "any other change is refused",
     )
     p.add_argument("--force", action="store_true", help="overwrite an existing run directory")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
-    p.set_defaults(func=cmd_train)
+    p.set_defaults(func=cmd_train, given=frozenset())
+    track_given(p)
 
     q = subparsers.add_parser(
         "predict",
@@ -168,8 +172,27 @@ def register(subparsers) -> None:
     )
     q.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
     q.add_argument("--json", action="store_true", help="print one JSON object")
-    q.add_argument("--plot", default=None, metavar="FILE", help="PNG of predicted vs true q")
+    q.add_argument("--plot", default=None, metavar="FILE",
+                   help="PNG of predicted vs true q (an existing file is replaced only if "
+                   "softpinn wrote it, or with --force)")
+    q.add_argument("--force", action="store_true",
+                   help="let --plot replace a file that softpinn did not write")
     q.set_defaults(func=cmd_predict)
+
+
+def track_given(parser) -> None:
+    """Record in ``args.given`` the destination of every option typed on the command line
+    (``--resume`` applies those, and only those, to the stored settings)."""
+    for action in parser._actions:
+        if not action.option_strings or action.dest == "help":
+            continue
+        cls = type(action)
+
+        def __call__(self, parser, namespace, values, option_string=None, _cls=cls):
+            namespace.given = frozenset(namespace.given) | {self.dest}
+            _cls.__call__(self, parser, namespace, values, option_string)
+
+        action.__class__ = type(f"Tracked{cls.__name__}", (cls,), {"__call__": __call__})
 
 
 def _enable_x64():
@@ -334,8 +357,11 @@ def cmd_train(args) -> int:
         from pathlib import Path
 
         stored = read_json(Path(args.out) / "config.json")
+        if not isinstance(stored, dict) or "train" not in stored:
+            raise UserError(f"--resume: {Path(args.out) / 'config.json'} is not a softpinn run")
         config = TrainConfig.from_dict(stored["train"])
         data = load_dataset(args.data, n=config.model.n, m=config.model.m)
+        config = _resumed_with_flags(args, config, data)
     else:
         data = load_dataset(args.data)
         mc = _model_config(args, data.n, data.m, data)
@@ -372,7 +398,7 @@ def cmd_train(args) -> int:
     try:
         result = train(
             data,
-            None if args.resume else config,
+            config,
             args.out,
             progress=bar,
             force=args.force,
@@ -394,6 +420,31 @@ def cmd_train(args) -> int:
         )
         print(f"run directory: {result.run_dir}")
     return 0
+
+
+#: train flags that are not settings of the run
+_RUN_FLAGS = frozenset({"out", "resume", "force", "quiet", "json", "given"})
+_MODEL_FLAGS = frozenset({"model", "width", "depth", "activation", "damping_form", "input_form",
+                          "eps", "mass_init", "state", "float32", *NETS})
+
+
+def _resumed_with_flags(args, stored, data):
+    """The stored configuration with the settings typed again on the command line (the library
+    keeps those that may change on resume and refuses the others, naming them)."""
+    import dataclasses
+
+    given = set(args.given) - _RUN_FLAGS
+    fields = {f.name for f in dataclasses.fields(stored)}
+    changes = {name: getattr(args, name) for name in given & fields}
+    if given & {"test_trajectories", "test_count"}:
+        changes["test_trajectories"] = (
+            args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
+        )
+    if given & _MODEL_FLAGS:
+        if args.model is None:
+            args.model = stored.model.kind
+        changes["model"] = _model_config(args, data.n, data.m, data)
+    return dataclasses.replace(stored, **changes) if changes else stored
 
 
 def _nulls(obj):
@@ -433,6 +484,7 @@ def cmd_predict(args) -> int:
         trajectories=traj,
         member=args.member,
         plot=args.plot,
+        force=args.force,
     )
     out = res.to_json()
     if args.json:
