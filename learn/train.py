@@ -23,6 +23,7 @@ from pathlib import Path
 import jax.numpy as jnp
 
 from . import checkpoint as ckpt
+from .advice import setting_warnings, warn_setting
 from .config import (
     ENSEMBLE_MODES,
     FORMAT,
@@ -158,6 +159,7 @@ def train(
     force: bool = False,
     resume: bool = False,
     programs: ProgramCache | None = None,
+    warn: Callable[[str], None] | None = None,
 ) -> TrainResult:
     """Train ``config.seeds`` models on ``data`` and write the run directory ``out_dir``.
 
@@ -172,6 +174,8 @@ def train(
     Raises :class:`TrainingDiverged` on a NaN/inf loss (the last good checkpoint is kept);
     on KeyboardInterrupt it saves a checkpoint and re-raises. ``programs``: the cache of
     compiled programs to use (default: the process's, :data:`learn.programs.PROGRAMS`).
+    ``warn(message)`` gets one line per setting that is clearly off for the data (see
+    :mod:`learn.advice`; default: a warning of the ``softpinn.learn`` logger).
     """
     programs = PROGRAMS if programs is None else programs
     run_dir = ckpt.prepare_run_dir(out_dir, force=force, resume=resume)
@@ -230,6 +234,9 @@ def train(
             test_np = test_np._replace(xdot0=None)
         train_pairs, test_pairs = to_pairs(train_np, dtype), to_pairs(test_np, dtype)
     batch = config.batch_for(train_np.count)
+    if not resume:
+        for message in setting_warnings(config, data, train_np.count, batch):
+            (warn or warn_setting)(message)
 
     prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch)
 

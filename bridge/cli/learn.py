@@ -403,6 +403,7 @@ def cmd_train(args) -> int:
             progress=bar,
             force=args.force,
             resume=args.resume,
+            warn=_warn,
         )
     finally:
         bar.close()
@@ -420,6 +421,17 @@ def cmd_train(args) -> int:
         )
         print(f"run directory: {result.run_dir}")
     return 0
+
+
+def _warn(message: str) -> None:
+    """A setting warning of the library, naming the flag instead of the field."""
+    from tqdm.auto import tqdm
+
+    field, sep, rest = message.partition(": ")
+    if sep and field.isidentifier():
+        message = f"--{field.replace('_', '-')}: {rest}"
+    message = message.replace("or 'data' to", "or --mass-init data to")
+    tqdm.write(f"softpinn: warning: {message}", file=sys.stderr)
 
 
 #: train flags that are not settings of the run
