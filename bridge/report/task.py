@@ -374,8 +374,14 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
                 rolls[k] = {key: z[key] for key in z.files}
     if not rolls:
         return lines
-    for prefix, what in (("main", f"prediction over {plan.horizon:g} s"),
-                         ("long", f"long prediction over {plan.long_horizon:g} s"),
+    def span(prefix):  # the horizon the rollout covers (a short variant's data may cut it)
+        for r in rolls.values():
+            if f"{prefix}_t" in r and r[f"{prefix}_t"].size:
+                return float(r[f"{prefix}_t"][-1] - r[f"{prefix}_t"][0])
+        return plan.horizon
+
+    for prefix, what in (("main", f"prediction over {span('main'):.3g} s"),
+                         ("long", f"long prediction over {span('long'):.3g} s"),
                          ("other", f"prediction with step {plan.other_dt:g} s")):
         fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
         any_ = False
