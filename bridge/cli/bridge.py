@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
+from .. import outputs
 from ..errors import UserError
 from .learn import _enable_x64
 
@@ -36,7 +37,12 @@ def register(subparsers) -> None:
     p.add_argument("--samples", type=int, default=2000,
                    help="data samples for the force and acceleration comparisons (default "
                         "2000; 0: none)")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True,
+                   help="output directory (new, empty, or an earlier analyze's)")
+    p.add_argument("--force", action="store_true",
+                   help="write into an --out that holds other files (none is removed)")
+    p.add_argument("--model-mismatch-ok", action="store_true",
+                   help="compare with MODEL although the run was trained on another model's data")
     p.add_argument("--json", action="store_true", help="print every number as one JSON object")
     p.set_defaults(func=cmd_analyze)
 
@@ -51,7 +57,11 @@ def register(subparsers) -> None:
     )
     r.add_argument("task", metavar="TASK", help="task1 ... task5")
     r.add_argument("--quick", action="store_true", help="small settings (a minute or two)")
-    r.add_argument("--out", required=True, help="output directory")
+    r.add_argument("--out", required=True,
+                   help="output directory (new, empty, or an earlier reproduce's: finished "
+                        "stages are reused)")
+    r.add_argument("--force", action="store_true",
+                   help="write into an --out that holds other files (none is removed)")
     r.add_argument("--seeds", type=int, default=1, help="train K seeds, report mean ± std")
     r.add_argument("--epochs", type=int, default=None, help="override every model's epochs")
     r.add_argument("--lbfgs-steps", type=int, default=None,
@@ -72,6 +82,7 @@ def cmd_analyze(args) -> int:
     from ..analysis import analysis_q, analyze, write_report
     from ..analysis.transforms import TRANSFORMS
 
+    _check_order(args.run, args.model)
     spec = load_spec(args.model)
     run = load_run(args.run)
     cfg = run.model_config
@@ -82,6 +93,8 @@ def cmd_analyze(args) -> int:
         )
     if cfg.kind == "blackbox":
         raise UserError(f"run {args.run} holds a black-box model: it has no matrices to analyze")
+    if not args.model_mismatch_ok:
+        _check_same_model(run, spec, args.run)
     transforms = args.transform or ("pointwise", "joint", "alpha", "constant", "smooth")
     for name in transforms:
         if name not in TRANSFORMS:
@@ -99,8 +112,10 @@ def cmd_analyze(args) -> int:
     else:
         q, k = analysis_q(spec, count=args.points)
     samples = _force_samples(run, args.data, args.samples, transforms)
+    out = outputs.claim(args.out, "analyze", force=args.force)
     result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
-    paths = write_report(result, args.out, max_table_q=max(k, 3))
+    paths = write_report(result, out, max_table_q=max(k, 3))
+    outputs.record(out, paths.values())
     if args.json:
         print(json.dumps(result.to_dict()))
     else:
@@ -108,6 +123,59 @@ def cmd_analyze(args) -> int:
             print(line)
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
+
+
+def _check_order(run: str, model: str) -> None:
+    """``analyze RUN MODEL`` with the arguments swapped or a data set for MODEL: say so."""
+    from pathlib import Path
+
+    m = Path(model)
+    if m.is_dir() and (m / "config.json").is_file():
+        raise UserError(f"model: {model} is a run directory; the order is `softpinn analyze RUN "
+                        "MODEL` (MODEL: a preset name or a spec file)")
+    if m.suffix == ".npz" or (m.is_file() and m.read_bytes()[:2] == b"PK"):
+        raise UserError(f"model: {model} is a data set, not a model; give the preset name or spec "
+                        "file of the true model (a data set to compare forces along: --data)")
+    if Path(run).is_file():
+        raise UserError(f"run: {run} is a file; RUN is the folder `softpinn train --out` wrote")
+
+
+def _check_same_model(run, spec, run_path: str) -> None:
+    """Refuse a true model that is not the one whose data the run was trained on: its physics
+    (from the data set's meta when the file is there and unchanged) or else its name."""
+    from pathlib import Path
+
+    from softpinn.learn.data import load_dataset
+
+    recorded = run.info.get("dataset", {})
+    name = recorded.get("name")
+    path = recorded.get("path")
+    physics = None
+    if path and Path(path).is_file():
+        try:
+            data = load_dataset(path)
+        except Exception:  # noqa: BLE001 - an unreadable data set: fall back to the name
+            data = None
+        if data is not None and data.sha256 == recorded.get("sha256"):
+            stored = data.meta.get("spec") if isinstance(data.meta, dict) else None
+            if isinstance(stored, dict):
+                physics = {k: v for k, v in stored.items()
+                           if k not in ("name", "source", "description", "data", "training")}
+    if physics is not None:
+        mine = json.loads(json.dumps(spec.physics_dict()))
+        mine.pop("name", None)
+        differ = sorted(k for k in set(physics) | set(mine) if physics.get(k) != mine.get(k))
+        if not differ:
+            return
+        what = f"its physics differ in {', '.join(differ)}"
+    elif name and name != spec.name:
+        what = "another model"
+    else:
+        return
+    raise UserError(
+        f"model: {run_path} was trained on data of {name or 'another model'}, not {spec.name} "
+        f"({what}); give the run's model, or --model-mismatch-ok to compare on purpose"
+    )
 
 
 def _headline(result) -> list[str]:
@@ -168,7 +236,7 @@ def cmd_reproduce(args) -> int:
             bar.close()
             print(line, file=sys.stderr, flush=True)
     try:
-        result = reproduce(config, args.out, log=log, progress=bar)
+        result = reproduce(config, args.out, log=log, progress=bar, force=args.force)
     finally:
         if bar is not None:
             bar.close()

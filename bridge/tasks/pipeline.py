@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import UserError
+from .. import outputs
 from .plan import Plan, ReproduceConfig, make_plan
 from .stages import (
     Stages,
@@ -69,8 +69,12 @@ def reproduce(
     *,
     log: Callable[[str], None] | None = None,
     progress: Callable[[dict], None] | None = None,
+    force: bool = False,
 ) -> ReproduceResult:
-    """Run a paper task end to end into ``out_dir`` (see the module docstring)."""
+    """Run a paper task end to end into ``out_dir`` (see the module docstring). ``out_dir``
+    may be new, empty or an earlier reproduce's (finished stages are reused); another non-empty
+    folder is refused unless ``force`` (:mod:`bridge.outputs`: nothing of the user's is
+    overwritten or removed)."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -79,10 +83,7 @@ def reproduce(
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
     log = log or (lambda s: None)
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+    out = outputs.claim(out_dir, "reproduce", force=force)
     t_start = time.perf_counter()
     spec = load_spec(config.task)
     plan = make_plan(spec, config)
@@ -148,6 +149,7 @@ def reproduce(
         "task": plan.task, "quick": plan.quick, "seconds": seconds,
         "machine": machine_description(), "results": results,
     })
+    outputs.record(out, outputs.written_files(out))
     log(f"report: {report}")
     return ReproduceResult(config, out, report, plan, results, seconds)
 

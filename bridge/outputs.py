@@ -1,0 +1,123 @@
+"""Output folders of ``softpinn analyze`` and ``softpinn reproduce``: nothing of the user's is
+overwritten or deleted.
+
+A command claims its ``--out`` folder before it writes anything, by writing the folder's
+``manifest.json`` (the format of a run directory's, :mod:`learn.checkpoint`, with the name of
+the command that owns the folder); when it finishes, the manifest lists every file it wrote, with
+its sha256. The folder may be new, empty, or one the same command claimed before (a rerun, or a
+rerun after an interruption: the claim is written first, so an interrupted command never blocks
+the next one). Any other non-empty folder (a user's, a run directory, another command's output)
+is refused with one line unless ``--force``; ``--force`` writes into it and removes nothing.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+from .errors import UserError
+
+MANIFEST = "manifest.json"
+FORMAT = "softpinn-manifest"
+
+
+def _read(folder: Path) -> dict | None:
+    path = folder / MANIFEST
+    if not path.is_file():
+        return None
+    try:
+        obj = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return {}
+    return obj if isinstance(obj, dict) and obj.get("format") == FORMAT else {}
+
+
+def owner(folder: Path) -> str | None:
+    """The softpinn command whose output ``folder`` holds: ``analyze``, ``reproduce``, ``train``
+    (a run directory), ``''`` for a folder holding things softpinn did not write, None if empty."""
+    if not folder.is_dir() or not any(folder.iterdir()):
+        return None
+    manifest = _read(folder)
+    if manifest:
+        return str(manifest.get("command") or "train")
+    if (folder / "config.json").is_file() and (folder / "model.eqx").is_file():
+        return "train"
+    # a task folder written before output folders had a manifest: its stages' records
+    if any(folder.glob("*/done.json")) or (folder / "report.md").is_file() and any(
+            folder.glob("*/*/done.json")):
+        return "reproduce"
+    return ""
+
+
+def _describe(who: str) -> str:
+    if who == "":
+        return "files softpinn did not write"
+    if who == "train":
+        return "a run directory of softpinn train"
+    return f"the output of softpinn {who}"
+
+
+def claim(out: str | Path, command: str, *, force: bool = False) -> Path:
+    """Make ``out`` the output folder of ``command`` (see the module's docstring)."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"out: {out} is a file, not a folder")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"out: {out}: {parent} is a file, not a folder")
+            break
+    who = owner(out)
+    if who is not None and who != command and not force:
+        raise UserError(
+            f"out: {out} already holds {_describe(who)}; choose another folder, or --force to "
+            "write into it (nothing of yours is removed)"
+        )
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        previous = (_read(out) or {}).get("files", {}) if who == command else {}
+        _write(out, {"format": FORMAT, "command": command, "files": previous})
+    except OSError as exc:
+        raise UserError(f"out: {out}: cannot write there ({exc.strerror or exc})") from None
+    return out
+
+
+def record(out: str | Path, paths: Iterable[str | Path]) -> None:
+    """List ``paths`` (files under ``out``) in its manifest with their sha256."""
+    out = Path(out)
+    manifest = _read(out) or {"format": FORMAT}
+    files = dict(manifest.get("files", {}))
+    root = out.resolve()
+    for p in paths:
+        p = Path(p)
+        if not p.is_file():
+            continue
+        try:
+            name = p.resolve().relative_to(root).as_posix()
+        except ValueError:
+            continue
+        files[name] = hashlib.sha256(p.read_bytes()).hexdigest()
+    manifest["files"] = dict(sorted(files.items()))
+    _write(out, manifest)
+
+
+def written_files(out: str | Path) -> list[Path]:
+    """Every file under ``out`` (what a command that owns the whole folder wrote)."""
+    return sorted(p for p in Path(out).rglob("*") if p.is_file() and p.name != MANIFEST
+                  and not p.name.startswith("."))
+
+
+def _write(out: Path, manifest: dict) -> None:
+    text = json.dumps(manifest, indent=2, allow_nan=False) + "\n"
+    fd, tmp = tempfile.mkstemp(prefix=f".{MANIFEST}.", suffix=".tmp", dir=out)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, out / MANIFEST)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
