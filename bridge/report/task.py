@@ -20,6 +20,7 @@ import numpy as np
 
 from ..errors import UserError
 from .paper import load_paper_tables, table_iii_comparison
+from .rollouts import coordinate_unit, finite_points, rollout_figure
 from .tables import format_mean_std, to_markdown, write_table
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
@@ -105,7 +106,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
             lines += [to_markdown(table), ""]
         lines += _floor_lines(models)
         lines += _modes_lines(models)
-        lines += _variant_figures(plan, vname, models, fig_dir, out)
+        lines += _variant_figures(spec, plan, vname, models, fig_dir, out)
     if sum(v.endswith("Hz") for v in results["variants"]) > 1:
         lines += _rate_figure(plan, results, fig_dir, out)
     lines += ["## Learned matrices against the true ones", ""]
@@ -352,12 +353,8 @@ def _load_history(run: Path) -> list[dict]:
     return read_history(path)
 
 
-def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
+                     out: Path) -> list[str]:
     from softpinn.learn.plots import plot_loss_curves
 
     lines: list[str] = []
@@ -380,43 +377,22 @@ def _variant_figures(plan, vname: str, models: dict, fig_dir: Path, out: Path) -
                 return float(r[f"{prefix}_t"][-1] - r[f"{prefix}_t"][0])
         return plan.horizon
 
+    names = list(spec.coordinate_names)
+    units = [coordinate_unit(c, spec.kind) for c in names]
     for prefix, what in (("main", f"prediction over {span('main'):.3g} s"),
                          ("long", f"long prediction over {span('long'):.3g} s"),
                          ("other", f"prediction with step {plan.other_dt:g} s")):
-        fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-        any_ = False
-        for k, r in rolls.items():
-            if f"{prefix}_t" not in r:
-                continue
-            t, qt, qp = r[f"{prefix}_t"], r[f"{prefix}_q_true"], r[f"{prefix}_q_pred"]
-            if not any_:
-                for i in range(qt.shape[1]):
-                    axes[0].plot(t, qt[:, i], "k-", lw=1.5, label="truth" if i == 0 else None)
-            style = "--" if k != "blackbox" else "^"
-            color = _COLORS.get(k, "C2")
-            kw = {"markevery": max(1, len(t) // 25), "ms": 4} if style == "^" else {}
-            for i in range(qp.shape[1]):
-                axes[0].plot(t, qp[:, i], style, lw=1.2, color=color,
-                             label=_NETWORK[k] if i == 0 else None, **kw)
-            # the error from the first step on (it is zero at the shared initial state)
-            err = np.abs(qp - qt)[1:].max(axis=1)
-            axes[1].semilogy(t[1:], np.maximum(err, 1e-16), style, lw=1.2, color=color,
-                             label=_NETWORK[k], **kw)
-            any_ = True
-        if not any_:
-            plt.close(fig)
+        have = {k: r for k, r in rolls.items() if f"{prefix}_t" in r}
+        if not have:
             continue
-        axes[0].set_ylabel("q")
-        axes[0].set_title(f"{plan.task} {vname}: {what}, test trajectory, same initial state")
-        axes[0].legend(fontsize=8)
-        axes[0].grid(alpha=0.3)
-        axes[1].set_ylabel("max |q − q̂|")
-        axes[1].set_xlabel("t [s]")
-        axes[1].grid(alpha=0.3, which="both")
-        fig.tight_layout()
-        path = fig_dir / f"rollout_{prefix}_{vname}.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        first = next(iter(have.values()))
+        path = rollout_figure(
+            first[f"{prefix}_t"], first[f"{prefix}_q_true"],
+            {k: r[f"{prefix}_q_pred"] for k, r in have.items()},
+            names=names, units=units, path=fig_dir / f"rollout_{prefix}_{vname}.png",
+            title=f"{plan.task} {vname}: {what}, a test trajectory from its measured "
+                  "initial state",
+        )
         lines += [f"![{what}]({_rel(path, out)})", ""]
     err_lines = ["| model | prediction error | long prediction | other step |",
                  "|---|---|---|---|"]
@@ -462,9 +438,15 @@ def _rate_figure(plan, results: dict, fig_dir: Path, out: Path) -> list[str]:
     if not rates:
         return []
     order = np.argsort(rates)
-    r, mu, sd = (np.asarray(a)[order] for a in (rates, means, stds))
+    r, mu, sd = (np.asarray(a, float)[order] for a in (rates, means, stds))
+    r, mu, sd, lost = finite_points(r, mu, sd)
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.errorbar(r, mu, yerr=sd, fmt="o-", capsize=4, label="ours (Lagrangian)")
+    if len(r):
+        ax.errorbar(r, mu, yerr=np.minimum(sd, 0.9 * mu), fmt="o-", capsize=4,
+                    label="ours (Lagrangian)")
+    if len(lost):
+        ax.text(0.02, 0.02, "diverged at " + ", ".join(f"{x:g} Hz" for x in lost),
+                transform=ax.transAxes, fontsize=8, color="C3")
     paper = _paper_rate_errors(plan.task)
     pr = [x for x in r if x in paper]
     if pr:

@@ -1,0 +1,117 @@
+"""Rollout figures of a task report: one panel per coordinate, named with its unit, the truth and
+every model from the same initial state, and the error against time on a log axis below.
+
+A rollout that diverged (a non-finite value, or one a thousand times the truth's range away from
+it) is drawn up to where it left and marked there "diverged at t = ... s"; nothing non-finite
+reaches a log axis (matplotlib's log axis fails on infinity: issue 15's task4 crash).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
+COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
+STYLES = {"lagrangian": "--", "hamiltonian": "-.", "blackbox": ":"}
+#: How far outside the truth's range (in multiples of it) a prediction counts as diverged.
+DIVERGED_FACTOR = 1e3
+
+
+def coordinate_unit(name: str, kind: str) -> str:
+    """The unit of a coordinate from its name (``theta1`` -> rad, ``dL2`` -> m) and the spec's
+    kind (the double pendulum's angles, the mass-spring-damper's positions)."""
+    base = name.rstrip("0123456789")
+    if base in ("theta", "phi") or kind == "double-pendulum":
+        return "rad"
+    if base in ("dL", "dx", "dy") or kind == "mass-spring-damper":
+        return "m"
+    return ""
+
+
+def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
+    """The first sample where the prediction is not finite or is farther from the truth than
+    :data:`DIVERGED_FACTOR` times the truth's range (None: it stayed)."""
+    q_pred = np.asarray(q_pred, float)
+    q_true = np.asarray(q_true, float)
+    scale = float(np.ptp(q_true)) if q_true.size else 0.0
+    scale = max(scale, float(np.max(np.abs(q_true))) if q_true.size else 0.0, 1e-9)
+    with np.errstate(invalid="ignore", over="ignore"):
+        bad = ~np.all(np.isfinite(q_pred), axis=1)
+        bad |= np.max(np.abs(np.nan_to_num(q_pred - q_true, nan=np.inf)), axis=1) > (
+            DIVERGED_FACTOR * scale)
+    idx = np.flatnonzero(bad)
+    return int(idx[0]) if idx.size else None
+
+
+def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray], *,
+                   names: Sequence[str], units: Sequence[str], title: str, path: str | Path,
+                   dpi: int = 150) -> Path:
+    """Write the figure: a panel per coordinate and the error panel (see the module)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(t, float)
+    q_true = np.asarray(q_true, float)
+    n = q_true.shape[1]
+    cols = min(3, n)
+    rows = -(-n // cols)
+    fig = plt.figure(figsize=(3.6 * cols + 0.6, 2.3 * rows + 2.6), layout="constrained")
+    grid = fig.add_gridspec(rows + 1, cols, height_ratios=[1.0] * rows + [1.1])
+    axes = [fig.add_subplot(grid[i // cols, i % cols]) for i in range(n)]
+    err_ax = fig.add_subplot(grid[rows, :])
+    cut = {k: diverged_at(qp, q_true) for k, qp in predictions.items()}
+    for i, ax in enumerate(axes):
+        ax.plot(t, q_true[:, i], "k-", lw=1.6, label="truth")
+        for k, qp in predictions.items():
+            end = cut[k] if cut[k] is not None else len(t)
+            ax.plot(t[:end], np.asarray(qp, float)[:end, i], STYLES.get(k, "--"), lw=1.3,
+                    color=COLORS.get(k, "C2"), label=NETWORK.get(k, k))
+            if cut[k] is not None:
+                ax.plot(t[max(end - 1, 0)], q_true[max(end - 1, 0), i], "x", ms=8, mew=2,
+                        color=COLORS.get(k, "C2"))
+        unit = f" [{units[i]}]" if units[i] else ""
+        ax.set_ylabel(f"{names[i]}{unit}")
+        ax.grid(alpha=0.3)
+        if i // cols == rows - 1 or i + cols >= n:
+            ax.set_xlabel("t [s]")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper right", ncols=len(labels), fontsize=8,
+               frameon=False)
+    fig.suptitle(title, fontsize=10, x=0.02, ha="left")
+    notes = []
+    for k, qp in predictions.items():
+        qp = np.asarray(qp, float)
+        end = cut[k] if cut[k] is not None else len(t)
+        if end > 1:
+            err = np.max(np.abs(qp[1:end] - q_true[1:end]), axis=1)
+            err_ax.semilogy(t[1:end], np.maximum(err, 1e-16), STYLES.get(k, "--"), lw=1.3,
+                            color=COLORS.get(k, "C2"), label=NETWORK.get(k, k))
+        if cut[k] is not None:
+            notes.append(f"{NETWORK.get(k, k)} diverged at t = {t[end]:.3g} s")
+    if notes:
+        err_ax.text(0.01, 0.95, "; ".join(notes), transform=err_ax.transAxes, va="top",
+                    fontsize=8, color="C3", bbox={"facecolor": "white", "alpha": 0.8,
+                                                  "edgecolor": "none"})
+    err_ax.set_ylabel("max over q of |q − q̂|")
+    err_ax.set_xlabel("t [s]")
+    err_ax.set_xlim(t[0], t[-1])
+    err_ax.grid(alpha=0.3, which="both")
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def finite_points(x: Sequence[float], y: Sequence[float], err: Sequence[float] | None = None):
+    """The points of a log-log curve that can be drawn (finite, positive) and the x of those
+    that cannot (a diverged model's infinite error)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    e = np.zeros_like(y) if err is None else np.nan_to_num(np.asarray(err, float), nan=0.0,
+                                                             posinf=0.0)
+    ok = np.isfinite(y) & (y > 0) & np.isfinite(x)
+    return x[ok], y[ok], e[ok], x[~ok]

@@ -1,0 +1,61 @@
+"""Rollout figures survive a diverged prediction (issue 15: task4 --quick crashed in matplotlib's
+log axis on an infinite error) and say where it diverged; coordinates carry their units."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softpinn.bridge.report.rollouts import (
+    coordinate_unit,
+    diverged_at,
+    finite_points,
+    rollout_figure,
+)
+
+
+def _truth(n=3, samples=200):
+    t = np.linspace(0.0, 2.0, samples)
+    return t, np.stack([np.sin((i + 1) * t) for i in range(n)], axis=1)
+
+
+def test_diverged_at_finds_non_finite_and_runaway_samples():
+    t, q = _truth()
+    assert diverged_at(q + 1e-3, q) is None
+    bad = q.copy()
+    bad[50:] = np.inf
+    assert diverged_at(bad, q) == 50
+    bad = q.copy()
+    bad[70, 1] = np.nan
+    assert diverged_at(bad, q) == 70
+    bad = q.copy()
+    bad[120:] = 1e9  # finite, but a billion times the truth's range away
+    assert diverged_at(bad, q) == 120
+
+
+@pytest.mark.parametrize("blowup", [np.inf, np.nan, 1e300])
+def test_figure_with_a_diverged_model_is_written(tmp_path, blowup):
+    t, q = _truth()
+    bad = q + 0.01
+    bad[80:] = blowup
+    path = rollout_figure(t, q, {"lagrangian": q + 1e-3, "hamiltonian": bad, "blackbox": q * 0.9},
+                          names=["dx1", "dy1", "dL1"], units=["m", "m", "m"],
+                          title="test", path=tmp_path / "r.png")
+    assert path.is_file() and path.stat().st_size > 10_000
+
+
+def test_figure_when_every_model_diverged_at_once(tmp_path):
+    t, q = _truth(n=2)
+    path = rollout_figure(t, q, {"lagrangian": np.full_like(q, np.inf)}, names=["theta1", "dL1"],
+                          units=["rad", "m"], title="all gone", path=tmp_path / "r.png")
+    assert path.is_file()
+
+
+def test_units_and_finite_points():
+    assert coordinate_unit("theta2", "planar-pcc") == "rad"
+    assert coordinate_unit("dL1", "planar-pcc") == "m"
+    assert coordinate_unit("dx2", "spatial-pcc") == "m"
+    assert coordinate_unit("q1", "double-pendulum") == "rad"
+    assert coordinate_unit("q1", "mass-spring-damper") == "m"
+    x, y, e, lost = finite_points([10, 50, 100], [1e-3, np.inf, 2e-3], [1e-4, np.nan, np.inf])
+    assert x.tolist() == [10, 100] and lost.tolist() == [50] and e.tolist() == [1e-4, 0.0]
