@@ -22,8 +22,20 @@ SCHEDULES = ("cosine", "exponential", "constant")
 LOSSES = ("pair", "accel", "rollout")
 ENSEMBLE_MODES = ("auto", "vmap", "sequential")
 SEED_MAX = 2**32 - 1
+INPUT_HOLDS = ("constant", "linear")
+#: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
+GROUPS = ("budget", "optimizer", "loss", "split", "ensemble")
 #: Settings that may change when a run is resumed (the others would make it another run).
 RESUMABLE = ("epochs", "patience", "eval_every", "checkpoint_every", "lbfgs_steps", "lbfgs_chunk")
+
+
+def _f(default, group: str, help: str, choices: tuple[str, ...] | None = None):
+    """A setting with its one default, its group and its help: the CLI is built from these
+    (``softpinn train``'s flags, defaults and help text come from here and nowhere else)."""
+    meta = {"group": group, "help": help}
+    if choices is not None:
+        meta["choices"] = choices
+    return dataclasses.field(default=default, metadata=meta)
 
 
 class TrainingDiverged(UserError):
@@ -62,31 +74,45 @@ class TrainConfig:
     """
 
     model: ModelConfig
-    epochs: int = 1000
-    batch_size: int | None = None
-    lr: float = 1e-3
-    schedule: str = "cosine"
-    warmup: float = 0.02
-    lr_final: float = 0.01
-    weight_decay: float = 1e-4
-    clip_norm: float = 0.0
-    loss: str = "pair"
-    loss_weight: float = 1.0
-    rollout_steps: int = 5
-    substeps: int = 1
-    input_hold: str = "constant"
-    accel_labels: str = "recorded"
-    seed: int = 0
-    seeds: int = 1
-    ensemble: str = "auto"
-    test_trajectories: tuple[int, ...] | int | float | None = None
-    split_seed: int = 0
-    samples: int | None = None
-    patience: int | None = None
-    eval_every: int = 1
-    checkpoint_every: int = 25
-    lbfgs_steps: int = 0
-    lbfgs_chunk: int = 10
+    # budget
+    epochs: int = _f(1000, "budget", "passes over the training pairs (AdamW)")
+    batch_size: int | None = _f(None, "budget", "minibatch size (pairs per optimizer step; "
+                                "default: max(64, pairs // 100))")
+    # optimizer
+    lr: float = _f(1e-3, "optimizer", "peak learning rate")
+    schedule: str = _f("cosine", "optimizer", "learning-rate schedule after the warmup",
+                       SCHEDULES)
+    warmup: float = _f(0.02, "optimizer", "warmup fraction of all steps")
+    lr_final: float = _f(0.01, "optimizer", "final lr as a fraction of lr")
+    weight_decay: float = _f(1e-4, "optimizer", "AdamW weight decay")
+    clip_norm: float = _f(0.0, "optimizer", "global gradient-norm clip (0: none)")
+    # loss
+    loss: str = _f("pair", "loss", "pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; "
+                   "rollout: eq. 8/9 averaged over rollout-steps steps", LOSSES)
+    loss_weight: float = _f(1.0, "loss", "lambda of eqs. 8/9")
+    rollout_steps: int = _f(5, "loss", "steps per window of loss 'rollout' (multi-step loss)")
+    substeps: int = _f(1, "loss", "RK4 sub-steps per pair")
+    input_hold: str = _f("constant", "loss", "the input between two samples: held or "
+                         "interpolated linearly", INPUT_HOLDS)
+    accel_labels: str = _f("recorded", "loss", "q̈ labels of loss 'accel': recorded in the "
+                           "file, or central differences of q̇", ACCEL_LABELS)
+    # ensemble
+    seed: int = _f(0, "ensemble", "seed of the network initialisation and minibatch order")
+    seeds: int = _f(1, "ensemble", "ensemble size K (seeds S..S+K-1)")
+    ensemble: str = _f("auto", "ensemble", "train the seeds as one stacked model (vmap) or one "
+                       "after another (auto: vmap on an accelerator)", ENSEMBLE_MODES)
+    # split
+    test_trajectories: tuple[int, ...] | int | float | None = _f(
+        None, "split", "held-out trajectories: ids, a count, a fraction (default 20%)")
+    split_seed: int = _f(0, "split", "seed of the random train/test split of trajectories")
+    samples: int | None = _f(None, "split", "train on N randomly chosen pairs (default: all)")
+    # budget, continued (may change on resume)
+    patience: int | None = _f(None, "budget", "early-stopping patience in evaluations "
+                              "(default: none)")
+    eval_every: int = _f(1, "budget", "evaluate the test loss every N epochs")
+    checkpoint_every: int = _f(25, "budget", "write a checkpoint every N epochs")
+    lbfgs_steps: int = _f(0, "budget", "L-BFGS iterations after AdamW (0: none)")
+    lbfgs_chunk: int = _f(10, "budget", "L-BFGS iterations per compiled call")
 
     def __post_init__(self):
         if not isinstance(self.model, ModelConfig):
@@ -135,7 +161,7 @@ class TrainConfig:
             ("schedule", SCHEDULES),
             ("loss", LOSSES),
             ("ensemble", ENSEMBLE_MODES),
-            ("input_hold", ("constant", "linear")),
+            ("input_hold", INPUT_HOLDS),
             ("accel_labels", ACCEL_LABELS),
         ):
             if getattr(self, name) not in allowed:
@@ -161,6 +187,20 @@ class TrainConfig:
                 "loss: 'accel' (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
                 f"a {self.model.kind} model uses the {self.model.state_kind} state"
             )
+
+    @classmethod
+    def settings(cls, group: str | None = None) -> tuple[dataclasses.Field, ...]:
+        """The fields that are settings (all but ``model``), of one group or all, with their
+        default, ``metadata['group']``, ``metadata['help']`` and ``metadata.get('choices')``."""
+        return tuple(f for f in dataclasses.fields(cls) if f.name != "model"
+                     and (group is None or f.metadata["group"] == group))
+
+    def group(self, name: str) -> dict[str, Any]:
+        """The settings of one group (``optimizer``, ``loss``, ``split``, ``ensemble``,
+        ``budget``) as a dict, e.g. ``config.group("optimizer")["lr"]``."""
+        if name not in GROUPS:
+            raise UserError(f"group: expected one of {list(GROUPS)}, got {name!r}")
+        return {f.name: getattr(self, f.name) for f in self.settings(name)}
 
     def batch_for(self, pairs: int) -> int:
         """The minibatch size for ``pairs`` training pairs (see ``batch_size``)."""

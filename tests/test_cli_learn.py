@@ -167,3 +167,30 @@ def test_progress_bars_count_epochs_then_lbfgs_iterations(capsys):
         assert bar.lbfgs.bar is None
     err = capsys.readouterr().err
     assert "L-BFGS:" in err and "/30 " in err
+
+
+def test_train_flags_come_from_the_config_fields():
+    """One default per setting (issue 14): every TrainConfig setting is a flag of `train` in
+    its group, with the field's default and choices, and a change of a field's default shows
+    up in the CLI without touching it."""
+    import argparse
+
+    from softpinn.bridge.cli import build_parser
+    from softpinn.learn.config import GROUPS, TrainConfig
+    from softpinn.learn.models import ModelConfig
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    train = sub.choices["train"]
+    groups = {g.title: {a.dest: a for a in g._group_actions} for g in train._action_groups}
+    for f in TrainConfig.settings():
+        group = groups[f.metadata["group"]]
+        assert f.name in group, f.name
+        action = group[f.name]
+        assert action.help, f.name
+        if f.name != "test_trajectories":
+            assert action.default == f.default, f.name
+            assert tuple(action.choices or ()) == tuple(f.metadata.get("choices") or ()), f.name
+    assert set(GROUPS) <= set(groups)
+    config = TrainConfig(model=ModelConfig(kind="lagrangian", n=2, m=1), lr=3e-3)
+    assert config.group("optimizer")["lr"] == 3e-3 and "lr" not in config.group("loss")

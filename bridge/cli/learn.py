@@ -9,6 +9,49 @@ import time
 
 MODEL_KINDS = ("lagrangian", "hamiltonian", "blackbox", "lagrangian-hessian")
 NETS = ("mass", "potential", "damping", "input", "hidden")
+#: Train settings whose flags are not generated one to one from their field.
+_CUSTOM = ("test_trajectories",)
+
+
+def _model_defaults() -> dict:
+    import dataclasses
+
+    from softpinn.learn.models import ModelConfig
+
+    return {f.name: f.default for f in dataclasses.fields(ModelConfig)}
+
+
+def add_setting_flags(parser) -> None:
+    """One flag per :class:`learn.config.TrainConfig` setting, in argument groups (budget,
+    optimizer, loss, split, ensemble), with the field's default, help and choices: the defaults
+    live in the config alone."""
+    import types
+    import typing
+
+    from softpinn.learn.config import GROUPS, TrainConfig
+
+    hints = typing.get_type_hints(TrainConfig)
+    for group in GROUPS:
+        g = parser.add_argument_group(group)
+        for f in TrainConfig.settings(group):
+            if f.name in _CUSTOM:
+                continue
+            hint = hints[f.name]
+            if isinstance(hint, types.UnionType):
+                hint = next(a for a in typing.get_args(hint) if a is not type(None))
+            kw = {"default": f.default, "help": f.metadata["help"].replace("%", "%%")}
+            if f.metadata.get("choices"):
+                kw["choices"] = f.metadata["choices"]
+            else:
+                kw["type"] = hint
+                kw["metavar"] = "N" if hint is int else "X"
+            g.add_argument(f"--{f.name.replace('_', '-')}", **kw)
+        if group == "split":
+            g.add_argument("--test-trajectories", type=int, nargs="+", default=None,
+                           metavar="ID", help="trajectory ids held out for testing "
+                           "(default: 20%% drawn at random)")
+            g.add_argument("--test-count", type=int, default=None, metavar="K",
+                           help="hold out K trajectories drawn at random")
 
 
 def register(subparsers) -> None:
@@ -25,113 +68,46 @@ def register(subparsers) -> None:
     p.add_argument("data", metavar="DATA.npz", help="dataset file")
     p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
-    p.add_argument("--epochs", type=int, default=1000,
-                   help="passes over the training pairs (AdamW)")
-    p.add_argument("--batch-size", type=int, default=None,
-                   help="minibatch size (pairs per optimizer step; default: max(64, pairs // 100))")
-    p.add_argument("--lr", type=float, default=1e-3, help="peak learning rate")
-    p.add_argument("--schedule", choices=("cosine", "exponential", "constant"), default="cosine",
-                   help="learning-rate schedule after the warmup")
-    p.add_argument("--warmup", type=float, default=0.02, help="warmup fraction of all steps")
-    p.add_argument("--lr-final", type=float, default=0.01, help="final lr as a fraction of --lr")
-    p.add_argument("--weight-decay", type=float, default=1e-4,
-                   help="AdamW weight decay")
-    p.add_argument("--clip-norm", type=float, default=0.0, help="global gradient-norm clip")
-    p.add_argument(
-        "--loss",
-        choices=("pair", "accel", "rollout"),
-        default="pair",
-        help="pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; rollout: eq. 8/9 averaged "
-        "over --rollout-steps steps",
-    )
-    p.add_argument(
-        "--accel-labels",
-        choices=("recorded", "differences"),
-        default="recorded",
-        help="q̈ labels of --loss accel: recorded in the file, or central differences of q̇",
-    )
-    p.add_argument("--loss-weight", type=float, default=1.0, help="lambda of eqs. 8/9")
-    p.add_argument(
-        "--rollout-steps",
-        type=int,
-        default=5,
-        help="steps per window of --loss rollout (multi-step loss)",
-    )
-    p.add_argument("--substeps", type=int, default=1, help="RK4 sub-steps per pair")
-    p.add_argument("--input-hold", choices=("constant", "linear"), default="constant",
-                   help="the input between two samples: held or interpolated linearly")
-    p.add_argument("--seed", type=int, default=0,
-                   help="seed of the network initialisation and minibatch order")
-    p.add_argument("--seeds", type=int, default=1, help="ensemble size K (seeds S..S+K-1)")
-    p.add_argument("--ensemble", choices=("auto", "vmap", "sequential"), default="auto",
-                   help="train the seeds as one stacked model (vmap) or one after another")
-    p.add_argument(
-        "--test-trajectories",
-        type=int,
-        nargs="+",
-        default=None,
-        metavar="ID",
-        help="trajectory ids held out for testing (default: 20%% drawn at random)",
-    )
-    p.add_argument(
-        "--test-count",
-        type=int,
-        default=None,
-        metavar="K",
-        help="hold out K trajectories drawn at random",
-    )
-    p.add_argument("--split-seed", type=int, default=0,
-                   help="seed of the random train/test split of trajectories")
-    p.add_argument(
-        "--samples", type=int, default=None, help="train on N randomly chosen pairs (default: all)"
-    )
-    p.add_argument("--width", type=int, default=None, help="width of every sub-network")
-    p.add_argument("--depth", type=int, default=None, help="hidden layers of every sub-network")
-    for net in NETS:
-        p.add_argument(
-            f"--{net}",
-            type=int,
-            nargs=2,
-            metavar=("W", "D"),
-            default=None,
-            help=f"width and depth of the {net} network",
-        )
-    p.add_argument("--activation", default="softplus",
-                   help="activation of every sub-network (softplus, tanh, ...)")
-    p.add_argument("--damping-form", choices=("network", "constant", "none"), default="network",
-                   help="D(q): a network, a learned constant, or none")
-    p.add_argument("--input-form", choices=("network", "constant"), default="network",
-                   help="A(q): a network or a learned constant")
-    p.add_argument("--eps", type=float, default=1e-3, help="Cholesky diagonal shift of M")
-    p.add_argument(
-        "--mass-init",
-        default=None,
-        metavar="X|data",
+    add_setting_flags(p)
+    net = p.add_argument_group("network")
+    net.add_argument("--width", type=int, default=None, help="width of every sub-network")
+    net.add_argument("--depth", type=int, default=None,
+                     help="hidden layers of every sub-network")
+    for name in NETS:
+        net.add_argument(f"--{name}", type=int, nargs=2, metavar=("W", "D"), default=None,
+                         help=f"width and depth of the {name} network (default: the kind's)")
+    model_defaults = _model_defaults()
+    net.add_argument("--activation", default=model_defaults["activation"],
+                     help="activation of every sub-network (softplus, tanh, ...)")
+    net.add_argument("--damping-form", choices=("network", "constant", "none"),
+                     default=model_defaults["damping_form"],
+                     help="D(q): a network, a learned constant, or none")
+    net.add_argument("--input-form", choices=("network", "constant"),
+                     default=model_defaults["input_form"],
+                     help="A(q): a network or a learned constant")
+    net.add_argument("--eps", type=float, default=model_defaults["eps"],
+                     help="Cholesky diagonal shift of M")
+    net.add_argument(
+        "--mass-init", default=None, metavar="X|data",
         help="initial diagonal of M (Lagrangian) or M^-1 (Hamiltonian); 'data': from the "
         "data's rms(p)/rms(qd) per coordinate (use it when masses are far from 1)",
     )
-    p.add_argument(
-        "--state",
-        choices=("velocity", "momentum"),
-        default=None,
-        help="state of a black-box model (default velocity)",
-    )
-    p.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
-    p.add_argument("--patience", type=int, default=None, help="early-stopping patience")
-    p.add_argument("--eval-every", type=int, default=1,
-                   help="evaluate the test loss every N epochs")
-    p.add_argument("--checkpoint-every", type=int, default=25,
-                   help="write a checkpoint every N epochs")
-    p.add_argument("--lbfgs-steps", type=int, default=0, help="L-BFGS finish iterations")
-    p.add_argument(
+    net.add_argument("--state", choices=("velocity", "momentum"), default=None,
+                     help="state of a black-box model (default velocity)")
+    net.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
+    from softpinn.learn.config import RESUMABLE
+
+    run = p.add_argument_group("run directory")
+    run.add_argument(
         "--resume", action="store_true",
         help="continue the run in --out with its stored options; of the options given again, "
-        "--epochs, --patience, --eval-every, --checkpoint-every and --lbfgs-steps may change, "
-        "any other change is refused",
+        + ", ".join(f"--{n.replace('_', '-')}" for n in RESUMABLE)
+        + " may change, any other change is refused",
     )
-    p.add_argument("--force", action="store_true", help="overwrite an existing run directory")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
+    run.add_argument("--force", action="store_true",
+                     help="overwrite an existing run directory (removes only softpinn's files)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     p.set_defaults(func=cmd_train, given=frozenset())
     track_given(p)
 
@@ -367,31 +343,9 @@ def cmd_train(args) -> int:
         mc = _model_config(args, data.n, data.m, data)
         test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
         config = TrainConfig(
-            model=mc,
-            epochs=args.epochs,
-            batch_size=args.batch_size,
-            lr=args.lr,
-            schedule=args.schedule,
-            warmup=args.warmup,
-            lr_final=args.lr_final,
-            weight_decay=args.weight_decay,
-            clip_norm=args.clip_norm,
-            loss=args.loss,
-            accel_labels=args.accel_labels,
-            loss_weight=args.loss_weight,
-            rollout_steps=args.rollout_steps,
-            substeps=args.substeps,
-            input_hold=args.input_hold,
-            seed=args.seed,
-            seeds=args.seeds,
-            ensemble=args.ensemble,
-            test_trajectories=test,
-            split_seed=args.split_seed,
-            samples=args.samples,
-            patience=args.patience,
-            eval_every=args.eval_every,
-            checkpoint_every=args.checkpoint_every,
-            lbfgs_steps=args.lbfgs_steps,
+            model=mc, test_trajectories=test,
+            **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
+               if f.name not in _CUSTOM},
         )
     bar = _Bar(config.epochs * config.seeds, disable=args.quiet)
     bar.start()
