@@ -1,0 +1,132 @@
+"""The smoothers of softpinn import (symbolic/filters.py) against closed forms: MATLAB's
+movmean, Savitzky-Golay and piecewise polyfit reproduce the polynomials they fit, with exact
+derivatives; central differences are exact for quadratics; the Hermite resampling is exact for
+cubics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from softpinn.symbolic import filters as F
+
+
+def cubic(t):
+    return 0.5 * t**3 - 2.0 * t**2 + t - 3.0, 1.5 * t**2 - 4.0 * t + 1.0, 3.0 * t - 4.0
+
+
+def nonuniform_times(count=80, seed=0):
+    rng = np.random.default_rng(seed)
+    return np.cumsum(rng.uniform(0.005, 0.02, count))
+
+
+def test_movmean_matches_matlab():
+    # MATLAB's documentation: movmean([4 8 6 -1 -2 -3 -1 3 4 5], 3)
+    a = np.array([4, 8, 6, -1, -2, -3, -1, 3, 4, 5], dtype=float)
+    np.testing.assert_allclose(F.movmean(a, 3),
+                               [6, 6, 13 / 3, 1, -2, -2, -1 / 3, 2, 4, 4.5], atol=1e-14)
+    # even window: W/2 before and W/2 - 1 after, shrunk at the ends (brute force)
+    for w in (1, 2, 4, 5, 20):
+        want = [a[max(0, k - w // 2): k + (w - 1 - w // 2) + 1].mean() for k in range(len(a))]
+        np.testing.assert_allclose(F.movmean(a, w), want, atol=1e-14)
+
+
+def test_movmean_of_a_line_is_the_line_inside():
+    t = np.linspace(0.0, 1.0, 50)
+    y = np.stack([3 * t - 1, -t], 1)
+    s, sd, sdd = F.smooth(t, y, "movmean:7")
+    np.testing.assert_allclose(s[3:-3], y[3:-3], atol=1e-13)
+    np.testing.assert_allclose(sd[4:-4], [[3.0, -1.0]] * 42, atol=1e-10)
+    np.testing.assert_allclose(sdd[6:-6], 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_savgol_reproduces_polynomials_and_their_derivatives(uniform):
+    t = np.linspace(0.0, 1.2, 81) if uniform else nonuniform_times()
+    y, yd, ydd = cubic(t)
+    s, sd, sdd = F.smooth(t, y, "savgol:11:3")
+    np.testing.assert_allclose(s, y, atol=1e-11)
+    np.testing.assert_allclose(sd, yd, atol=1e-9)
+    np.testing.assert_allclose(sdd, ydd, atol=1e-7)
+
+
+def test_savgol_in_time_is_scipys_savgol_on_uniform_times():
+    from scipy.signal import savgol_filter
+
+    t = np.linspace(0.0, 2.0, 60)
+    y = np.sin(3 * t)[:, None] + 0.01 * np.random.default_rng(1).normal(size=(60, 1))
+    mine = F.local_fits(t, y, 9, 2)
+    for k in range(3):
+        want = savgol_filter(y, 9, 2, deriv=k, delta=t[1] - t[0], axis=0, mode="interp")
+        np.testing.assert_allclose(mine[k], want, atol=1e-9)
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_polyfit_pieces_reproduce_a_polynomial(uniform):
+    t = np.linspace(0.0, 1.0, 53) if uniform else nonuniform_times(53)
+    y, yd, ydd = cubic(t)
+    s, sd, sdd = F.smooth(t, np.stack([y, 2 * y], 1), "polyfit:3:10")
+    np.testing.assert_allclose(s[:, 0], y, atol=1e-11)
+    np.testing.assert_allclose(sd[:, 1], 2 * yd, atol=1e-8)
+    np.testing.assert_allclose(sdd[:, 0], ydd, atol=1e-6)
+
+
+def test_polyfit_pieces_fit_each_run_on_its_own():
+    # a kink between the runs [0, 10) and [10, 20): each straight piece is fitted exactly
+    t = np.arange(20.0)
+    y = np.where(t < 10, t, 20 - t)
+    s, sd, _ = F.smooth(t, y, "polyfit:1:10")
+    np.testing.assert_allclose(s, y, atol=1e-12)
+    np.testing.assert_allclose(sd, np.where(t < 10, 1.0, -1.0), atol=1e-12)
+    # a short remainder (3 samples < half a window) joins the last run
+    s, _, _ = F.smooth(np.arange(23.0), np.arange(23.0) ** 2, "polyfit:2:10")
+    np.testing.assert_allclose(s, np.arange(23.0) ** 2, atol=1e-9)
+
+
+@pytest.mark.parametrize("uniform", [True, False])
+def test_central_differences_are_exact_for_quadratics(uniform):
+    t = np.linspace(0.0, 1.0, 30) if uniform else nonuniform_times(30)
+    y = 2 * t**2 - t
+    s, sd, sdd = F.smooth(t, y, "none")
+    np.testing.assert_array_equal(s, y)
+    np.testing.assert_allclose(sd, 4 * t - 1, atol=1e-10)
+    np.testing.assert_allclose(sdd[2:-2], 4.0, atol=1e-6)
+
+
+def test_hermite_resampling_is_exact_for_cubics():
+    t = nonuniform_times(40)
+    y, yd, ydd = cubic(t)
+    tn, yn, ydn, yddn = F.resample_uniform(t, y[:, None], yd[:, None], ydd[:, None], 50.0)
+    np.testing.assert_allclose(np.diff(tn), 0.02, atol=1e-12)
+    assert tn[0] == t[0] and tn[-1] <= t[-1]
+    want = cubic(tn)
+    np.testing.assert_allclose(yn[:, 0], want[0], atol=1e-12)
+    np.testing.assert_allclose(ydn[:, 0], want[1], atol=1e-3)  # yd is quadratic: Hermite
+    np.testing.assert_allclose(yddn[:, 0], want[2], atol=1e-12)  # ydd linear: exact
+
+
+@pytest.mark.parametrize(
+    "text,match",
+    [
+        ("median:5", r"smooth: expected none \| movmean:W \| savgol:W:P \| polyfit:DEG:W"),
+        ("movmean", r"smooth: expected none"),
+        ("movmean:x", r"window and degree must be integers"),
+        ("movmean:0", r"at least 1 sample"),
+        ("savgol:10:3", r"odd number >= 3"),
+        ("savgol:5:5", r"degree must be in 0 .. window - 1"),
+        ("polyfit:3:3", r"a window of 3 samples cannot fit degree 3"),
+    ],
+)
+def test_bad_settings(text, match):
+    with pytest.raises(F.FilterError, match=match):
+        F.parse_smoother(text)
+
+
+def test_round_trip_of_the_setting_text():
+    for text in ("none", "movmean:20", "savgol:11:3", "polyfit:5:40"):
+        assert str(F.parse_smoother(text)) == text
+
+
+def test_too_short_for_the_window():
+    with pytest.raises(F.FilterError, match="savgol:11:3 needs at least 11 samples"):
+        F.smooth(np.arange(5.0), np.arange(5.0), "savgol:11:3")
