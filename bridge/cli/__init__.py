@@ -15,6 +15,7 @@ import sys
 #: Modules that contribute subcommands, in the order they appear in ``--help``.
 COMMAND_MODULES = (
     "softpinn.bridge.cli.symbolic",
+    "softpinn.bridge.cli.data",
     "softpinn.bridge.cli.learn",
     "softpinn.bridge.cli.bridge",
     "softpinn.bridge.export.cli",
