@@ -24,6 +24,8 @@ Seeding: trajectory k draws its initial state and then its signal from
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 import os
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -84,6 +86,9 @@ __all__ = [
     "with_overrides",
     "write_dataset",
 ]
+
+LOG = logging.getLogger("softpinn.symbolic")
+
 
 def _rng(seed: int, k: int) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(k)])
@@ -160,6 +165,8 @@ class DatasetPlan:
     noise: float
     signal: str
     settle: float = 0.0
+    #: how the defaults were made when the spec has no [data] table (symbolic.defaults)
+    data_defaults: str | None = None
 
 
 def plan_dataset(
@@ -188,6 +195,13 @@ def plan_dataset(
     ``settle + duration``); it must be a whole number of output samples.
     """
     spec = load_spec(model)
+    defaults = None
+    if data is None and not spec.data:  # no [data]: defaults from the physics, not q = 0, u = 0
+        from .defaults import physics_data_table
+
+        table, defaults = physics_data_table(spec)
+        spec = dataclasses.replace(spec, data=table)
+        LOG.warning(defaults)
     cfg = data_config(spec, data)
     integ = integrator or cfg.integrator
     if integ not in INTEGRATORS:
@@ -220,6 +234,16 @@ def plan_dataset(
     kind = signal or cfg.signal
     if kind not in SIGNAL_KINDS:
         raise DataError(f"signal: expected one of {', '.join(SIGNAL_KINDS)}, got {kind!r}")
+    if total > 1:
+        x0, sigs = draw_trajectories(cfg, spec.n, spec.m, range(total), kind=kind,
+                                     duration=float(duration), seed=seed)
+        if np.all(x0 == x0[0]) and all(s.to_dict() == sigs[0].to_dict() for s in sigs):
+            raise DataError(
+                f"{spec.source}: [data] makes all {total} trajectories identical (the same "
+                f"initial state and the same input): give ranges q0_low/q0_high or "
+                f"qd0_low/qd0_high, or a signal whose ranges differ (docs/spec.md); without a "
+                "[data] table defaults come from the physics"
+            )
     settle = cfg.settle if settle is None else float(settle)
     skip = settle * float(rate)
     if not (np.isfinite(settle) and settle >= 0):
@@ -237,6 +261,7 @@ def plan_dataset(
         noise=noise,
         signal=kind,
         settle=settle,
+        data_defaults=defaults,
     )
 
 
@@ -334,6 +359,7 @@ def make_dataset(
         "initial_states": x0.tolist(),  # at t = 0, before any settle time
         "signals": [s.to_dict() for s in sigs],
         "signal_kind": kind,
+        "data_defaults": plan.data_defaults,
         "seed": seed,
         "seeding": "trajectory k: numpy.random.default_rng([seed, k]) draws x0, then the signal",
         "noise": noise_meta,

@@ -1,0 +1,198 @@
+"""An arm of one's own: softpinn init writes a commented template spec that loads and simulates
+(symbolic/template.py); a spec without [data] simulates with defaults from its physics
+(symbolic/defaults.py) instead of identical trajectories from q = 0; and the whole path
+spec -> init -> simulate -> CSV -> import for a 3-segment arm."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+import pytest
+
+from softpinn.bridge.cli import main
+from softpinn.learn.data import load_dataset
+from softpinn.symbolic.datafile import read_dataset
+from softpinn.symbolic.datasets import make_dataset, plan_dataset
+from softpinn.symbolic.datatable import DataError, data_config
+from softpinn.symbolic.defaults import physics_data_table
+from softpinn.symbolic.spec import load_spec, spec_from_dict, spec_from_toml
+
+
+@pytest.fixture(autouse=True)
+def _cache(tmp_path_factory, monkeypatch):
+    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "init-cache"))
+
+
+def run(capsys, *argv):
+    status = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def commented_data_table(text: str) -> dict:
+    """The template's commented-out [data] block, uncommented and parsed."""
+    import tomllib
+
+    lines = text.splitlines()
+    start = lines.index("# [data]")
+    body = []
+    for line in lines[start + 1:]:
+        if not line.startswith("# ") or " = " not in line:
+            break
+        body.append(line[2:])
+    return tomllib.loads("\n".join(body))
+
+
+def test_path_init_simulate_import_for_a_three_segment_arm(tmp_path, capsys, caplog):
+    spec_file = tmp_path / "arm3.toml"
+    status, out, _ = run(capsys, "init", "arm3", "--segments", 3, "--out", spec_file)
+    assert status == 0 and f"arm3: wrote {spec_file} (3-segment spatial-pcc, n = 9, m = 12" in out
+    text = spec_file.read_text()
+    spec = load_spec(spec_file)
+    assert spec.n == 9 and spec.m == 12 and spec.actuation == "tendon" and not spec.data
+    assert text.count("[[segment]]") == 3 and "# [data]" in text
+    # the commented [data] block is what simulate will use for the physics as written
+    shown = commented_data_table(text)
+    assert set(shown) >= {"rate", "duration", "q0_low", "q0_high", "signal", "amplitude_high"}
+    data_config(spec, shown)
+    table, _ = physics_data_table(spec)
+    assert shown["rate"] == table["rate"] and shown["q0_high"] == table["q0_high"]
+
+    npz = tmp_path / "arm3.npz"
+    with caplog.at_level(logging.WARNING, logger="softpinn.symbolic"):
+        status, out, err = run(capsys, "simulate", spec_file, "--out", npz, "--trajectories", 2,
+                               "--duration", 0.2, "--rate", 1000, "--no-compile", "--quiet")
+    assert status == 0, err
+    assert "arm3: no [data] table: defaults from its physics" in caplog.text
+    sim = read_dataset(npz)
+    assert sim.meta["data_defaults"].startswith("arm3: no [data] table")
+    assert sim.meta["signal_kind"] == "multisine" and sim.meta["spec"]["data"]["seed"] == 0
+    assert not np.array_equal(sim.q[sim.traj == 0], sim.q[sim.traj == 1])
+    assert np.all(np.abs(sim.q[:, 2::3]) < 0.05)  # stretch: a fraction of the 0.2 m segments
+
+    csv = tmp_path / "arm3.csv"
+    names = ["traj", "t", *(f"u{j}" for j in range(12)), *(f"q{j}" for j in range(9))]
+    np.savetxt(csv, np.c_[sim.traj, sim.t, sim.u, sim.q], delimiter=",", header=",".join(names),
+               comments="", fmt="%.17g")
+    back = tmp_path / "back.npz"
+    status, out, err = run(capsys, "import", csv, "--model", spec_file, "--out", back,
+                           "--test-trajectories", 1)
+    assert status == 0, err
+    data = load_dataset(back, n=9, m=12)
+    np.testing.assert_array_equal(data.q, sim.q)
+    np.testing.assert_array_equal(data.u, sim.u)
+    # central differences of exact samples at 1 kHz; the fastest mode (stretch) is 35 Hz
+    inside = np.r_[2:198, 202:398]
+    scale = np.abs(sim.qd).max(0)
+    assert np.max(np.abs(data.qd[inside] - sim.qd[inside]) / scale) < 0.02
+
+
+@pytest.mark.parametrize(
+    "argv,kind,n,m",
+    [
+        (["--segments", "1"], "spatial-pcc", 3, 4),
+        (["--segments", "2", "--planar", "--hanging"], "planar-pcc", 4, 4),
+        (["--segments", "1", "--hanging", "--actuation", "generalized"], "spatial-pcc", 3, 3),
+        (["--segments", "2", "--spatial", "--actuation", "tip-wrench"], "spatial-pcc", 6, 6),
+    ],
+)
+def test_variants_load_and_plan(tmp_path, capsys, argv, kind, n, m):
+    out = tmp_path / "x.toml"
+    status, _, err = run(capsys, "init", "x", *argv, "--out", out)
+    assert status == 0, err
+    spec = load_spec(out)
+    assert (spec.kind, spec.n, spec.m) == (kind, n, m)
+    hanging = "--hanging" in argv
+    g = spec.gravity[-1]
+    assert (g > 0) == hanging
+    plan = plan_dataset(spec)
+    assert plan.data.signal == "multisine" and plan.trajectories == 10
+
+
+def test_init_errors(tmp_path, capsys):
+    out = tmp_path / "a.toml"
+    out.write_text("mine\n")
+    cases = [
+        (["init", "a", "--segments", 1, "--out", out],
+         f"--out {out}: file exists (use --force to overwrite)"),
+        (["init", "a", "--segments", 0, "--out", tmp_path / "b.toml"],
+         "--segments: must be a whole number >= 1, got 0"),
+        (["init", "a b", "--segments", 1, "--out", tmp_path / "b.toml"],
+         "name: use letters, digits, '_', '-' or '.', got 'a b'"),
+        (["init", "a", "--segments", 1, "--planar", "--actuation", "tendon", "--out",
+          tmp_path / "b.toml"], "--actuation: a planar arm takes one of generalized, none, got "
+         "'tendon'"),
+        (["init", "a", "--segments", 1, "--out", tmp_path / "b.txt"],
+         f"--out {tmp_path / 'b.txt'}: a spec file must end in .toml"),
+    ]
+    for argv, message in cases:
+        status, _, err = run(capsys, *argv)
+        assert status == 2 and err == f"softpinn: error: {message}\n", err
+    assert out.read_text() == "mine\n"
+    assert run(capsys, "init", "a", "--segments", 1, "--out", out, "--force")[0] == 0
+    assert load_spec(out).name == "a"
+
+
+# --------------------------------------------------------------------------------------------
+# Defaults for a spec without [data]
+
+
+def hanging_soft_arm(**changes):
+    """The issue's example: one hanging segment, soft in stretch (m g / (2 k) = 1.47 m)."""
+    seg = dict(length=0.2, mass=0.3, stiffness=[1.0, 1.0, 1.0], damping=[0.1, 0.1, 0.1])
+    raw = dict(name="soft", kind="spatial-pcc", gravity=[0.0, 0.0, 9.81],
+               actuation="generalized", segment=[seg])
+    raw.update(changes)
+    return spec_from_dict(raw, source="soft.toml")
+
+
+def test_a_hanging_soft_arm_is_held_at_rest_and_trajectories_differ():
+    spec = hanging_soft_arm()
+    table, summary = physics_data_table(spec)
+    assert table["offset_low"] == table["offset_high"]
+    assert table["offset_low"][2] == pytest.approx(-0.3 * 9.81 / 2, rel=1e-3)  # holds dL = 0
+    assert "held by the constant input" in summary
+    d = make_dataset(spec, trajectories=2, duration=2.0, rate=50.0, compile=False)
+    assert np.max(np.abs(d.q[:, 2])) < 0.25 * 0.2  # not metres
+    assert not np.allclose(d.q[d.traj == 0], d.q[d.traj == 1])
+    assert len({json_key(s) for s in d.meta["signals"]}) == 2
+
+
+def json_key(d):
+    import json
+
+    return json.dumps(d, sort_keys=True)
+
+
+def test_unactuated_specs_get_distinct_free_motions():
+    spec = dataclasses.replace(load_spec("task2"), data={})
+    plan = plan_dataset(spec)
+    assert plan.data.signal == "zero" and plan.data.q0_low == (-0.3, -0.3)
+    assert plan.data_defaults.startswith("task2: no [data] table")
+
+
+@pytest.mark.parametrize(
+    "spec,message",
+    [
+        (hanging_soft_arm(gravity=[0.0, 0.0, -9.81], actuation="none",
+                          segment=[dict(length=0.2, mass=0.3, stiffness=[1e-3, 1e-3, 100.0])]),
+         "soft.toml: no [data] table, and the arm is not stable at its rest state"),
+        (hanging_soft_arm(actuation="none"),
+         "soft.toml: no [data] table, and the arm has no usable rest state at zero input"),
+        (hanging_soft_arm(parameterization="phi-theta"), "phi-theta is singular"),
+    ],
+)
+def test_specs_whose_physics_give_no_defaults_are_refused(spec, message):
+    with pytest.raises(DataError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        plan_dataset(spec)
+
+
+def test_a_data_table_that_makes_identical_trajectories_is_refused(tmp_path, capsys):
+    text = ('name = "same"\nkind = "mass-spring-damper"\nmasses = [1.0, 1.0]\n'
+            "springs = [1.0, 1.0]\n[data]\nduration = 1.0\n")
+    with pytest.raises(DataError, match=r"same.toml: \[data\] makes all 3 trajectories "
+                       r"identical"):
+        plan_dataset(spec_from_toml(text, source="same.toml"), trajectories=3)
+    plan_dataset(spec_from_toml(text, source="same.toml"), trajectories=1)  # one is fine
