@@ -109,7 +109,8 @@ def cmd_import(args) -> int:
     rate = f"{meta['rate']:g} Hz" if meta["rate"] else "non-uniform times"
     test = meta["splits"]["test"]
     print(
-        f"{meta['spec']['name']}: wrote {out} ({k} trajectories, {len(data)} samples, {rate}, "
+        f"{meta['spec']['name']}: wrote {out} ({k} trajector{'y' if k == 1 else 'ies'}, "
+        f"{len(data)} samples, {rate}, "
         f"state from {record['state']}, smooth {record['smooth']['text']}, "
         f"{len(test)} for test)"
     )
