@@ -74,6 +74,7 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
             if cut[k] is not None:
                 ax.plot(t[max(end - 1, 0)], q_true[max(end - 1, 0), i], "x", ms=8, mew=2,
                         color=COLORS.get(k, "C2"))
+        _focus(ax, q_true[:, i], [np.asarray(qp, float)[:, i] for qp in predictions.values()])
         unit = f" [{units[i]}]" if units[i] else ""
         ax.set_ylabel(f"{names[i]}{unit}")
         ax.grid(alpha=0.3)
@@ -105,6 +106,21 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path
+
+
+def _focus(ax, truth: np.ndarray, preds: Sequence[np.ndarray]) -> None:
+    """y-limits around the truth and the predictions near it: a prediction that runs away is
+    cut at the panel's edge (the error panel below shows how far), not allowed to flatten the
+    truth into a line."""
+    lo, hi = float(np.min(truth)), float(np.max(truth))
+    span = max(hi - lo, 1e-3 * max(abs(lo), abs(hi)), 1e-9)
+    window = (lo - 2 * span, hi + 2 * span)
+    for p in preds:
+        near = p[np.isfinite(p) & (p >= window[0]) & (p <= window[1])]
+        if near.size:
+            lo, hi = min(lo, float(near.min())), max(hi, float(near.max()))
+    pad = 0.08 * (hi - lo) + 1e-12
+    ax.set_ylim(lo - pad, hi + pad)
 
 
 def finite_points(x: Sequence[float], y: Sequence[float], err: Sequence[float] | None = None):

@@ -18,10 +18,14 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.symbolic.shape import PCC_KINDS
+
 from ..errors import UserError
 from .paper import load_paper_tables, table_iii_comparison
 from .rollouts import coordinate_unit, finite_points, rollout_figure
+from .shape import shape_animation, shape_figure
 from .tables import format_mean_std, to_markdown, write_table
+from .verdict import verdict
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 _COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
@@ -68,8 +72,10 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
+    title = (spec.description or spec.name).rstrip(".")
+    named = plan.task.replace("task", "task ") in title.lower() or plan.task in title
     lines = [
-        f"# {plan.task}: {spec.description or spec.name}",
+        f"# {title}" + ("" if named else f" ({plan.task})"),
         "",
         f"`softpinn reproduce {plan.task}{' --quick' if plan.quick else ''}` "
         f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); "
@@ -83,6 +89,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         _integration_sentence(plan),
         "",
     ]
+    lines[2:2] = verdict(plan, results)
     physics_kinds = [k for k in plan.models if k != "blackbox"]
     for vname, vres in results["variants"].items():
         files = results["data"]["variants"][vname]
@@ -106,7 +113,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
             lines += [to_markdown(table), ""]
         lines += _floor_lines(models)
         lines += _modes_lines(models)
-        lines += _variant_figures(spec, plan, vname, models, fig_dir, out)
+        lines += _variant_figures(spec, plan, vname, models, fig_dir, out,
+                                  animate=vname == next(iter(results["variants"])))
     if sum(v.endswith("Hz") for v in results["variants"]) > 1:
         lines += _rate_figure(plan, results, fig_dir, out)
     lines += ["## Learned matrices against the true ones", ""]
@@ -354,7 +362,7 @@ def _load_history(run: Path) -> list[dict]:
 
 
 def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
-                     out: Path) -> list[str]:
+                     out: Path, animate: bool = False) -> list[str]:
     from softpinn.learn.plots import plot_loss_curves
 
     lines: list[str] = []
@@ -394,6 +402,19 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
                   "initial state",
         )
         lines += [f"![{what}]({_rel(path, out)})", ""]
+    main = {k: r for k, r in rolls.items() if "main_t" in r}
+    if spec.kind in PCC_KINDS and main:
+        first = next(iter(main.values()))
+        args = (spec, first["main_t"], first["main_q_true"],
+                {k: r["main_q_pred"] for k, r in main.items()})
+        path = shape_figure(*args, path=fig_dir / f"shape_{vname}.png",
+                            title=f"{plan.task} {vname}: the arm, true (black) and predicted")
+        lines += ["The arm itself: its backbone (eqs. 13-14) true and predicted at four instants "
+                  "of the same test rollout.", "", f"![shape]({_rel(path, out)})", ""]
+        if animate:
+            gif = shape_animation(*args, path=fig_dir / f"shape_{vname}.gif",
+                                  title=f"{plan.task} {vname}")
+            lines += [f"Animation: [{gif.name}]({_rel(gif, out)})", ""]
     err_lines = ["| model | prediction error | long prediction | other step |",
                  "|---|---|---|---|"]
     for k, e in models.items():

@@ -1,0 +1,174 @@
+"""Pictures of the arm itself: the backbone (eqs. 13-14, 27) of the true and the predicted arm
+at several instants of a rollout (``shape.png``), an animation of the two over the rollout
+(``shape.gif``, Pillow's GIF writer, which matplotlib installs and every browser plays), and a
+single configuration or a recorded trajectory for ``softpinn show``."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from softpinn.symbolic.shape import backbone_points
+
+from .rollouts import COLORS, NETWORK, diverged_at
+
+
+def _axes(fig, dim: int, where=(1, 1, 1)):
+    if dim == 3:
+        ax = fig.add_subplot(*where, projection="3d")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_zlabel("z [m]")
+    else:
+        ax = fig.add_subplot(*where)
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_aspect("equal", adjustable="box")
+        ax.grid(alpha=0.3)
+    return ax
+
+
+def _limits(ax, points: np.ndarray) -> None:
+    """Equal scales on every axis around all points (T, dim, K)."""
+    flat = points.transpose(1, 0, 2).reshape(points.shape[1], -1)
+    lo, hi = flat.min(axis=1), flat.max(axis=1)
+    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-3) * 1.1
+    if points.shape[1] == 3:
+        ax.set_xlim(mid[0] - half, mid[0] + half)
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_zlim(mid[2] - half, mid[2] + half)
+        ax.set_box_aspect((1, 1, 1), zoom=0.85)
+    else:
+        ax.set_xlim(mid[0] - half, mid[0] + half)
+        ax.set_ylim(mid[1] - half, mid[1] + half)
+
+
+def _draw(ax, pts: np.ndarray, *, color, style="-", lw=2.0, label=None, alpha=1.0):
+    """One backbone (dim, K) with its base (square) and tip (dot)."""
+    args = tuple(pts)
+    ax.plot(*args, style, color=color, lw=lw, label=label, alpha=alpha)
+    ax.plot(*(p[:1] for p in pts), "s", color="k", ms=5, alpha=alpha)
+    ax.plot(*(p[-1:] for p in pts), "o", color=color, ms=5, alpha=alpha)
+
+
+def draw_configurations(spec, q, *, path: str | Path, title: str = "",
+                        labels: Sequence[str] | None = None, dpi: int = 150) -> Path:
+    """The backbone of each configuration in ``q`` (n,) or (k, n), one colour each."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    q = np.atleast_2d(np.asarray(q, float))
+    pts = backbone_points(spec, q)
+    fig = plt.figure(figsize=(5.5, 5.5), layout="constrained")
+    ax = _axes(fig, pts.shape[1])
+    for i, p in enumerate(pts):
+        label = labels[i] if labels else ("q = [" + ", ".join(f"{v:.3g}" for v in q[i]) + "]")
+        _draw(ax, p, color=f"C{i % 10}", label=label)
+    _limits(ax, pts)
+    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(title or f"{spec.name}: backbone (base ■, tip ●)", fontsize=10)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray],
+                 *, path: str | Path, title: str, instants: int = 4, dpi: int = 150) -> Path:
+    """The true (black) and predicted backbones at ``instants`` times of a rollout, one panel
+    each; a prediction that diverged before an instant is left out of that panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.asarray(t, float)
+    q_true = np.asarray(q_true, float)
+    idx = np.unique(np.linspace(0, len(t) - 1, instants).round().astype(int))
+    cut = {k: diverged_at(qp, q_true) for k, qp in predictions.items()}
+    true_pts = backbone_points(spec, q_true[idx])
+    pred_pts = {k: backbone_points(spec, np.asarray(qp, float)[idx])
+                for k, qp in predictions.items() if cut[k] is None or cut[k] > idx[-1]}
+    partial = {k: [i for i in range(len(idx)) if cut[k] is None or idx[i] < cut[k]]
+               for k in predictions}
+    for k, qp in predictions.items():
+        if k not in pred_pts and partial[k]:
+            pts = np.full((len(idx),) + true_pts.shape[1:], np.nan)
+            pts[partial[k]] = backbone_points(spec, np.asarray(qp, float)[idx[partial[k]]])
+            pred_pts[k] = pts
+    dim = true_pts.shape[1]
+    fig = plt.figure(figsize=(3.3 * len(idx), 3.8), layout="constrained")
+    every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))]
+                                         for p in pred_pts.values()])
+    for j, i in enumerate(idx):
+        ax = _axes(fig, dim, (1, len(idx), j + 1))
+        _draw(ax, true_pts[j], color="k", label="truth")
+        for k, pts in pred_pts.items():
+            if not np.isnan(pts[j]).any():
+                _draw(ax, pts[j], color=COLORS.get(k, "C2"), style="--", lw=1.6,
+                      label=NETWORK.get(k, k))
+        _limits(ax, every)
+        ax.set_title(f"t = {t[i] - t[0]:.3g} s", fontsize=9)
+        if j == 0:
+            ax.legend(fontsize=7, loc="upper left")
+    fig.suptitle(title, fontsize=10)
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def shape_animation(spec, t: np.ndarray, q_true: np.ndarray,
+                    predictions: Mapping[str, np.ndarray], *, path: str | Path, title: str,
+                    frames: int = 40, fps: int = 10, dpi: int = 80) -> Path:
+    """A GIF of the true and predicted arms over the rollout (``frames`` frames, spread evenly;
+    a diverged prediction disappears where it left)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    t = np.asarray(t, float)
+    q_true = np.asarray(q_true, float)
+    idx = np.unique(np.linspace(0, len(t) - 1, frames).round().astype(int))
+    true_pts = backbone_points(spec, q_true[idx])
+    preds = {}
+    for k, qp in predictions.items():
+        c = diverged_at(qp, q_true)
+        keep = [j for j, i in enumerate(idx) if c is None or i < c]
+        pts = np.full_like(true_pts, np.nan)
+        if keep:
+            pts[keep] = backbone_points(spec, np.asarray(qp, float)[idx[keep]])
+        preds[k] = pts
+    dim = true_pts.shape[1]
+    fig = plt.figure(figsize=(5, 5))
+    ax = _axes(fig, dim)
+    every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))] for p in preds.values()])
+    _limits(ax, every)
+    line_true, = ax.plot(*true_pts[0], "k-", lw=2.2, label="truth")
+    lines = {k: ax.plot(*p[0], "--", lw=1.8, color=COLORS.get(k, "C2"),
+                        label=NETWORK.get(k, k))[0] for k, p in preds.items()}
+    ax.legend(fontsize=7, loc="upper left")
+    head = ax.set_title("", fontsize=9)
+
+    def frame(j):
+        for artist, pts in [(line_true, true_pts[j])] + [(lines[k], p[j])
+                                                          for k, p in preds.items()]:
+            if dim == 3:
+                artist.set_data(pts[0], pts[1])
+                artist.set_3d_properties(pts[2])
+            else:
+                artist.set_data(pts[0], pts[1])
+        head.set_text(f"{title}\nt = {t[idx[j]] - t[0]:.2f} s")
+        return [line_true, *lines.values(), head]
+
+    anim = FuncAnimation(fig, frame, frames=len(idx), blit=False)
+    path = Path(path)
+    anim.save(path, writer=PillowWriter(fps=fps), dpi=dpi)
+    plt.close(fig)
+    return path

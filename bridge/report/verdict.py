@@ -1,0 +1,91 @@
+"""The few sentences a task report opens with, generated from its numbers: which model predicts
+best and by how much against the black box and the paper, how well the learned matrices match
+the true ones, what diverged, and whether this is a quick run."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from ..errors import UserError
+from .paper import load_paper_tables
+
+NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
+#: A residual (percent of the true matrices' size) up to which learned matrices "match".
+GOOD_PERCENT = 5.0
+
+
+def _who(kind: str) -> str:
+    return "black box" if kind == "blackbox" else f"{NETWORK[kind]} network"
+
+
+def _paper_prediction(task: str, group: str, variant: str | None) -> float | None:
+    """The paper's prediction error (Table III) of ``group`` (physics, blackbox) on a variant."""
+    try:
+        entry = load_paper_tables()["table_III"].get(task, {}).get(group)
+    except UserError:
+        return None
+    if isinstance(entry, dict) and variant is not None and variant in entry:
+        entry = entry[variant]
+    try:
+        value = float(entry["prediction_error"]["mean"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return value if math.isfinite(value) else None
+
+
+def _times(a: float, b: float) -> str:
+    r = b / a
+    return f"{r:.3g}×" if r < 100 else f"{r:.2g}×"
+
+
+def verdict(plan, results: dict[str, Any]) -> list[str]:
+    """Markdown lines: one paragraph of sentences (see the module)."""
+    says: list[str] = []
+    if plan.quick:
+        says.append("**This is a quick run**: little data and short training, to check the "
+                    "pipeline in minutes; its numbers are not meant to match the paper's, and "
+                    "may even rank the models the other way (run without `--quick` for that).")
+    for vname, vres in results["variants"].items():
+        models = vres["models"]
+        on = "" if vname == "main" else f" on the {vname} data"
+        pred = {k: float(e["predict"]["prediction_error"]["mean"]) for k, e in models.items()}
+        horizon = next(iter(models.values()))["predict"]["prediction_error"]["horizon_s"]
+        gone = [k for k, v in pred.items() if not math.isfinite(v)]
+        ok = {k: v for k, v in pred.items() if math.isfinite(v)}
+        if ok:
+            best = min(ok, key=ok.get)
+            text = (f"{_who(best)} predicts best{on}: error {ok[best]:.3g} over "
+                    f"{horizon:.3g} s")
+            others = [k for k in ok if k != best]
+            if "blackbox" in ok and best != "blackbox":
+                text += f", {_times(ok[best], ok['blackbox'])} lower than the black box's"
+            elif best == "blackbox" and others:
+                o = min(others, key=ok.get)
+                text += f", {_times(ok[best], ok[o])} lower than the {_who(o)}'s"
+            paper = _paper_prediction(plan.task, "blackbox" if best == "blackbox" else "physics",
+                                      None if vname == "main" else vname)
+            if paper is not None and ok[best] > 0:
+                text += (f"; the paper reports {paper:.3g} for its "
+                         f"{'black box' if best == 'blackbox' else 'physics model'}")
+            says.append("The " + text + ".")
+        for k in gone:
+            says.append(f"The {_who(k)}'s rollout diverged{on} (error inf).")
+        for k, e in models.items():
+            summary = (e.get("analyze") or {}).get("summary")
+            if not summary:
+                continue
+            fits = {n: s.get("residual_total") for n, s in summary.items()
+                    if n != "direct" and s.get("residual_total") is not None
+                    and math.isfinite(s["residual_total"])}
+            if not fits:
+                continue
+            name = min(fits, key=fits.get)
+            pct = 100 * fits[name]
+            if pct <= GOOD_PERCENT:
+                says.append(f"The {_who(k)}'s learned matrices{on} match the true ones up to the "
+                            f"{name} transform P(q), within {pct:.2g} %.")
+            else:
+                says.append(f"The {_who(k)}'s learned matrices{on} do not match the true ones: "
+                            f"even the best transform ({name} P(q)) leaves {pct:.3g} %.")
+    return ["## Verdict", "", " ".join(says), ""]
