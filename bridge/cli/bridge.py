@@ -109,8 +109,12 @@ def cmd_analyze(args) -> int:
         k = len(q)
         if "smooth" in transforms and len(q) < 8:
             transforms = tuple(t for t in transforms if t != "smooth")
-    else:
+    elif "q0_low" in spec.data and "q0_high" in spec.data:
         q, k = analysis_q(spec, count=args.points)
+    else:  # a spec without a [data] box (its data imported, or simulated with defaults)
+        table, k = analysis_q(spec, count=0) if spec.training.get("matrix_q") else (
+            np.zeros((0, spec.n)), 0)
+        q = np.concatenate([table, _data_q(run, args.data, args.points)])
     samples = _force_samples(run, args.data, args.samples, transforms)
     out = outputs.claim(args.out, "analyze", force=args.force)
     result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
@@ -176,6 +180,24 @@ def _check_same_model(run, spec, run_path: str) -> None:
         f"model: {run_path} was trained on data of {name or 'another model'}, not {spec.name} "
         f"({what}); give the run's model, or --model-mismatch-ok to compare on purpose"
     )
+
+
+def _data_q(run, data_path, count: int):
+    """``count`` configurations drawn from the data (``--data``, else the run's data set): the
+    q to analyse when the spec has no [data] box to sample from."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from softpinn.learn.data import load_dataset
+
+    path = data_path or run.info.get("dataset", {}).get("path")
+    if not path or not Path(path).is_file():
+        raise UserError(f"model: the spec has no [data] q0_low/q0_high to sample q from and the "
+                        f"run's data set {path} is not there; give --q or --data")
+    q = load_dataset(path, n=run.model_config.n, m=run.model_config.m).q
+    rows = np.random.default_rng(0).choice(len(q), size=min(count, len(q)), replace=False)
+    return np.asarray(q)[np.sort(rows)]
 
 
 def _headline(result) -> list[str]:
