@@ -20,6 +20,7 @@ COMMAND_MODULES = (
     "softpinn.bridge.cli.bridge",
     "softpinn.bridge.cli.show",
     "softpinn.bridge.export.cli",
+    "softpinn.bridge.cli.control",
 )
 
 

@@ -1,0 +1,215 @@
+"""``softpinn control``: model-predictive control with learned models against the true model.
+
+Flags map onto :func:`softpinn.bridge.control.compare` and
+:class:`softpinn.bridge.control.MPCConfig`; the headline is one table per reference (tracking
+error, solve time per step, failures). Wired into the CLI by ``register(subparsers)``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+
+from softpinn.bridge.errors import UserError
+
+
+def register(subparsers) -> None:
+    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SOLVERS, MPCConfig
+
+    d = MPCConfig()
+    p = subparsers.add_parser(
+        "control",
+        help="model-predictive control of a model's tip with learned models (true model as "
+             "plant)",
+        description=(
+            "Steer the true model MODEL (cvodes) along references (a circle, steps) with "
+            "nonlinear MPC, once per prediction model: the true model itself (the best case), "
+            "each learned run in --runs (exported to CasADi in-process, as `softpinn export`) "
+            "and the true model linearised at the centre. Writes results.json (tip tracking "
+            "error, input effort, solver failures, solve time per step), report.md, figures/ "
+            "and traces/ into --out."
+        ),
+    )
+    p.add_argument("model", metavar="MODEL",
+                   help="the plant: a preset name (see 'softpinn models') or spec file")
+    p.add_argument("--runs", nargs="+", default=[], metavar="RUN",
+                   help="trained runs (`softpinn train` folders, `softpinn reproduce` stage "
+                        "folders holding run/) or `softpinn export` folders (default: none)")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--member", type=int, default=None, metavar="K",
+                       help="use the ensemble member with seed K of each run (default: the "
+                            "best member)")
+    which.add_argument("--mean", action="store_true",
+                       help="use the mean of each ensemble's members")
+    p.add_argument("--no-true", action="store_true",
+                   help="leave out the controller with the true model")
+    p.add_argument("--no-linear", action="store_true",
+                   help="leave out the controller with the linearised true model")
+
+    r = p.add_argument_group("references")
+    r.add_argument("--reference", nargs="+", choices=REFERENCES, default=list(REFERENCES),
+                   help="references to follow")
+    r.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="seconds per reference (default: one period of the circle, each step "
+                        "target held --hold)")
+    r.add_argument("--center", type=float, nargs="+", default=None, metavar="Q",
+                   help="the centre in q (n values; default: the middle of the spec's [data] "
+                        "initial coordinates)")
+    r.add_argument("--radius", type=float, default=None, metavar="R",
+                   help="radius of the circle and size of the steps, in q's first two "
+                        "coordinates (default: 15%% of their [data] range)")
+    r.add_argument("--period", type=float, default=4.0, metavar="S",
+                   help="seconds per round of the circle")
+    r.add_argument("--hold", type=float, default=1.0, metavar="S",
+                   help="seconds each step target is held")
+
+    m = p.add_argument_group("controller")
+    m.add_argument("--rate", type=float, default=1.0 / d.dt, metavar="HZ",
+                   help="control rate (the MPC step is 1 / rate)")
+    m.add_argument("--horizon", type=int, default=d.horizon, metavar="N",
+                   help="prediction horizon in control steps")
+    m.add_argument("--substeps", type=int, default=d.substeps, metavar="K",
+                   help="least RK4 sub-steps per control step in the prediction (more for a "
+                        "model that is stiff at the centre)")
+    m.add_argument("--weight-y", dest="weight_y", type=float, default=d.weight_y, metavar="W",
+                   help="weight of the squared output error (per unit of the output squared)")
+    m.add_argument("--weight-u", dest="weight_u", type=float, default=d.weight_u, metavar="W",
+                   help="weight of the squared input")
+    m.add_argument("--weight-du", dest="weight_du", type=float, default=d.weight_du,
+                   metavar="W", help="weight of the squared input change per step")
+    m.add_argument("--u-min", dest="u_min", type=float, nargs="+", default=None, metavar="U",
+                   help="lower input bounds (m values or one; default: the spec's [data] input "
+                        "range widened by a quarter, none without one; -inf lifts it)")
+    m.add_argument("--u-max", dest="u_max", type=float, nargs="+", default=None, metavar="U",
+                   help="upper input bounds (as --u-min)")
+    m.add_argument("--solver", choices=SOLVERS, default=d.solver,
+                   help="sqp: Gauss-Newton SQP from generated C; ipopt: IPOPT, exact Hessian")
+    m.add_argument("--qpsol", choices=QP_SOLVERS, default=d.qpsol,
+                   help="the SQP's QP solver (used when an input bound is active)")
+    m.add_argument("--max-iter", dest="max_iter", type=int, default=d.max_iter, metavar="N",
+                   help="solver iterations per control step")
+    m.add_argument("--no-codegen", action="store_true",
+                   help="run the solver's functions in CasADi's virtual machine, no C compiler")
+    m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
+
+    p.add_argument("--force", action="store_true",
+                   help="write into a non-empty folder that is not an earlier control output "
+                        "(nothing in it is removed)")
+    p.add_argument("--json", action="store_true", help="print results.json")
+    p.add_argument("--quiet", action="store_true", help="no progress output")
+    p.set_defaults(func=cmd_control)
+
+
+def _bounds(values, m: int, flag: str):
+    if values is None:
+        return None
+    a = np.asarray(values, float)
+    if a.size not in (1, m):
+        raise UserError(f"{flag}: expected {m} values (one per input) or one, got {a.size}")
+    if np.any(np.isnan(a)):
+        raise UserError(f"{flag}: values must be numbers, got {a.tolist()}")
+    return tuple(float(v) for v in np.broadcast_to(a, (m,)))
+
+
+def cmd_control(args) -> int:
+    import dataclasses
+
+    if args.runs:  # the runs are rebuilt from float64 weights (as `softpinn export`)
+        import jax
+
+        jax.config.update("jax_enable_x64", True)
+    from softpinn.bridge.control import MPCConfig, compare, default_input_bounds
+    from softpinn.symbolic.spec import load_spec
+
+    spec = load_spec(args.model)
+    if not (np.isfinite(args.rate) and args.rate > 0):
+        raise UserError(f"--rate: expected a rate in Hz > 0, got {args.rate}")
+    u_min = _bounds(args.u_min, spec.m, "--u-min")
+    u_max = _bounds(args.u_max, spec.m, "--u-max")
+    data_bounds = default_input_bounds(spec) if spec.m else None
+    if data_bounds is not None:
+        u_min = tuple(float(v) for v in data_bounds[0]) if u_min is None else u_min
+        u_max = tuple(float(v) for v in data_bounds[1]) if u_max is None else u_max
+    config = MPCConfig(
+        horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
+        weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
+        u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
+        max_iter=args.max_iter, codegen=not args.no_codegen,
+    )
+    if args.solver == "ipopt":  # IPOPT's jit compiles the whole NLP: slow to build
+        config = dataclasses.replace(config, codegen=False)
+
+    bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)
+    try:
+        result = compare(
+            spec, args.runs, args.out, config=config, references=args.reference,
+            center=args.center, radius=args.radius, period=args.period, hold=args.hold,
+            duration=args.duration, include_true=not args.no_true,
+            include_linear=not args.no_linear, member=args.member, mean=args.mean,
+            force=args.force, compiler=args.compiler, log=bar.write, progress=bar.update,
+        )
+    finally:
+        bar.close()
+    result.pop("traces", None)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    for line in headline(result):
+        print(line)
+    print(f"wrote {args.out}/report.md, results.json, figures/, traces/")
+    return 0
+
+
+class _LazyBar:
+    """A tqdm bar of control steps on stderr, opened at the first step (an input error before
+    it stays one line); ``write`` prints a line above it. Nothing with ``quiet``."""
+
+    def __init__(self, desc: str, *, quiet: bool):
+        self.desc, self.quiet, self.bar = desc, quiet, None
+
+    def update(self) -> None:
+        if self.quiet:
+            return
+        if self.bar is None:
+            from tqdm.auto import tqdm
+
+            self.bar = tqdm(desc=self.desc, unit="step", file=sys.stderr, leave=False)
+        self.bar.update()
+
+    def write(self, line: str) -> None:
+        if self.quiet:
+            return
+        if self.bar is not None:
+            self.bar.write(line, file=sys.stderr)
+        else:
+            print(line, file=sys.stderr)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def headline(result: dict) -> list[str]:
+    """Per reference, one row per controller: error RMS and max, solve time, failures."""
+    unit = result["output"]["unit"]
+    cfg = result["config"]
+
+    def num(v, fmt):
+        return "n/a" if v is None else format(v, fmt)
+
+    lines = [f"{result['model']}: MPC at {result['rate']:g} Hz, horizon {cfg['horizon']}, "
+             f"{cfg['solver']}; plant: the true model (cvodes)"]
+    width = max(len(n) for n in result["controllers"]) + 2
+    for rname, per in result["results"].items():
+        lines.append(f"{rname}: {'controller':<{width}}{'RMS [' + unit + ']':>12}"
+                     f"{'max [' + unit + ']':>12}{'solve ms':>10}{'max ms':>9}  failures")
+        for name, m in per.items():
+            fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
+            lines.append(f"{'':<{len(rname) + 2}}{name:<{width}}"
+                         f"{num(m['error_rms'], '.3g'):>12}{num(m['error_max'], '.3g'):>12}"
+                         f"{num(m['solve_ms_mean'], '.2f'):>10}{num(m['solve_ms_max'], '.2f'):>9}"
+                         f"  {fail}")
+    return lines

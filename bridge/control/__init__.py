@@ -1,0 +1,65 @@
+"""Model-predictive control with learned models: CasADi, generated C, the true model as plant.
+
+    from softpinn.bridge.control import MPC, MPCConfig, compare, from_run, tip_output
+    result = compare("task4", ["runs/lnn"], "control-out")      # what `softpinn control` does
+
+    # or piece by piece:
+    model = from_run("runs/lnn", tip_output(spec), export_dir="exported/lnn")
+    mpc = MPC(model, MPCConfig(horizon=20, dt=0.02))
+    u, info = mpc.solve(q, qd, reference, u_prev)   # reference: (horizon, ny) outputs
+
+See docs/control.md.
+"""
+
+from .compare import REFERENCES, compare
+from .loop import closed_loop, metrics, plant
+from .models import (
+    PredictionModel,
+    from_export,
+    from_run,
+    from_true,
+    linearised,
+    output_label,
+    resolve_run,
+    tip_output,
+)
+from .mpc import MPC, QP_SOLVERS, SOLVERS, MPCConfig, rk4_map
+from .references import (
+    circle_reference,
+    circle_start,
+    default_center,
+    default_input_bounds,
+    default_radius,
+    equilibrium,
+    step_reference,
+    step_targets,
+)
+
+__all__ = [
+    "MPC",
+    "MPCConfig",
+    "PredictionModel",
+    "QP_SOLVERS",
+    "REFERENCES",
+    "SOLVERS",
+    "circle_reference",
+    "circle_start",
+    "closed_loop",
+    "compare",
+    "default_center",
+    "default_input_bounds",
+    "default_radius",
+    "equilibrium",
+    "from_export",
+    "from_run",
+    "from_true",
+    "linearised",
+    "metrics",
+    "output_label",
+    "plant",
+    "resolve_run",
+    "rk4_map",
+    "step_reference",
+    "step_targets",
+    "tip_output",
+]

@@ -1,0 +1,376 @@
+"""The comparison behind ``softpinn control``: MPC with several prediction models on one plant.
+
+:func:`compare` steers the true model (cvodes, :func:`~.loop.plant`) along each reference with
+one MPC per prediction model: the true model itself (the best case), each learned run (exported
+to CasADi in-process, :func:`~.models.from_run`) and the true model linearised at the
+reference's centre. It writes into ``out``:
+
+* ``results.json``: the settings, the machine, and per reference and controller the tracking
+  error (RMS, max, final, in the units of the output), input effort, solver failures, SQP
+  iterations and solve time per step (mean, median, p95, max in ms), and the build time;
+* ``report.md``: the same as tables, with the figures;
+* ``figures/``: per reference the paths (3-D for a spatial arm), the outputs and the error over
+  time, the inputs and the solve times;
+* ``traces/<reference>.npz``: the time series (t, r, and y, u, x, solve seconds, success per
+  controller) for your own plots;
+* ``models/<name>/``: each run's export (``softpinn export``'s files).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import platform
+import re
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import UserError
+from .loop import closed_loop, metrics, plant
+from .models import (
+    PredictionModel,
+    from_run,
+    from_true,
+    linearised,
+    output_label,
+    resolve_run,
+    tip_output,
+)
+from .mpc import MPC, MPCConfig
+from .references import (
+    circle_reference,
+    circle_start,
+    default_center,
+    default_radius,
+    equilibrium,
+    step_reference,
+    step_targets,
+)
+
+__all__ = ["compare", "REFERENCES", "FORMAT"]
+
+FORMAT = "softpinn-control"
+#: the references :func:`compare` knows
+REFERENCES = ("circle", "step")
+
+
+def machine() -> str:
+    """CPU model, cores, system, Python (for timings in results.json and report.md)."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores, {platform.system()}, "
+            f"Python {platform.python_version()}")
+
+
+def _safe(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
+
+
+def _finite(obj):
+    """JSON without NaN or inf: such numbers become null."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, float | np.floating):
+        return float(obj) if np.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.ndarray):
+        return _finite(obj.tolist())
+    return obj
+
+
+def _references(tm, output, names, *, dt, horizon, center, radius, period, hold, duration):
+    """Per reference: times, the reference rows r_1 ..., the start (x0, u0) and settings."""
+    refs = {}
+    for name in names:
+        if name == "circle":
+            q0, u0 = equilibrium(tm, circle_start(center, radius))
+            length = period if duration is None else duration
+            info = {"kind": "circle", "center": center, "radius": radius, "period": period}
+        elif name == "step":
+            q0, u0 = equilibrium(tm, center)
+            targets = [equilibrium(tm, q)[0] for q in step_targets(center, radius)]
+            length = hold * len(targets) if duration is None else duration
+            info = {"kind": "step", "center": center, "radius": radius, "hold": hold,
+                    "targets": targets}
+        else:
+            raise UserError(f"reference: expected one of {', '.join(REFERENCES)}, got "
+                            f"{name!r}")
+        steps = int(round(length / dt))
+        if steps < 1:
+            raise UserError(f"duration: {length:g} s is shorter than one control step "
+                            f"({dt:g} s)")
+        times = np.arange(1, steps + horizon + 1) * dt
+        if name == "circle":
+            R = circle_reference(output, center, radius, period, times)
+        else:
+            R = step_reference(output, targets, hold, times)
+        info.update(duration=steps * dt, steps=steps, q0=q0, u0=u0)
+        refs[name] = {"R": R, "steps": steps, "x0": np.concatenate([q0, np.zeros(tm.n)]),
+                      "u0": u0, "info": info}
+    return refs
+
+
+def _unique(name: str, taken) -> str:
+    if name not in taken:
+        return name
+    i = 2
+    while f"{name}-{i}" in taken:
+        i += 1
+    return f"{name}-{i}"
+
+
+def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = None,
+            references: Sequence[str] = REFERENCES, center=None, radius: float | None = None,
+            period: float = 4.0, hold: float = 1.0, duration: float | None = None,
+            include_true: bool = True, include_linear: bool = True,
+            member: int | None = None, mean: bool = False, force: bool = False,
+            names: Sequence[str] | None = None, compiler=None,
+            log: Callable[[str], None] | None = None,
+            progress: Callable[[], None] | None = None) -> dict:
+    """Compare MPC with each prediction model on the plant ``model`` (a preset name, spec file
+    or :class:`~softpinn.symbolic.spec.ModelSpec`); returns what ``results.json`` holds.
+
+    ``runs``: trained runs (``softpinn train`` directories, ``softpinn reproduce`` stage
+    folders holding ``run/``) or ``softpinn export`` directories; ``member``/``mean`` choose
+    the ensemble member exported. ``references``: "circle" and/or "step" around ``center`` (q,
+    default: the middle of the spec's initial coordinates) with ``radius`` (in q's first two
+    coordinates); one circle takes ``period`` s, each step is held ``hold`` s; ``duration``
+    overrides both lengths. ``out``: the folder written (None: nothing is written).
+    ``log``: called with one line per finished simulation. ``progress``: once per step.
+    """
+    from softpinn import __version__
+    from softpinn.symbolic.model import TrueModel
+    from softpinn.symbolic.spec import load_spec
+
+    t_start = time.perf_counter()
+    config = MPCConfig() if config is None else config
+    spec = load_spec(model)
+    if spec.m == 0:
+        raise UserError(f"model: {spec.name} has no inputs (actuation none): there is nothing "
+                        "to control; give a spec with an actuation")
+    references = list(dict.fromkeys(references))
+    for name in references:
+        if name not in REFERENCES:
+            raise UserError(f"reference: expected one of {', '.join(REFERENCES)}, got "
+                            f"{name!r}")
+    if not references:
+        raise UserError("reference: give at least one reference")
+    runs = list(runs)
+    if not (include_true or include_linear or runs):
+        raise UserError("runs: nothing to compare (no run, and the true and linearised "
+                        "controllers are off)")
+    if names is not None and len(names) != len(runs):
+        raise UserError(f"names: expected one name per run ({len(runs)}), got {len(names)}")
+    center = default_center(spec) if center is None else np.asarray(center, float).ravel()
+    if center.size != spec.n or not np.all(np.isfinite(center)):
+        raise UserError(f"center: expected {spec.n} finite coordinates of {spec.name} "
+                        f"({', '.join(spec.coordinate_names)}), got {center.size}")
+    radius = default_radius(spec) if radius is None else float(radius)
+    if not (np.isfinite(radius) and radius >= 0):
+        raise UserError(f"radius: expected a finite number >= 0, got {radius!r}")
+    for key, value in (("period", period), ("hold", hold)):
+        if not (np.isfinite(value) and value > 0):
+            raise UserError(f"{key}: expected a number of seconds > 0, got {value!r}")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise UserError(f"duration: expected a number of seconds > 0, got {duration!r}")
+
+    from .. import outputs
+
+    if out is not None:
+        _precheck_out(Path(out), force)
+    say = log or (lambda line: None)
+    tm = TrueModel(spec)
+    output = tip_output(spec)
+    components, unit = output_label(spec)
+    qc, uc = equilibrium(tm, center)
+
+    # the prediction models; runs are exported to a scratch folder first, so that a bad run
+    # or member fails before anything is written to ``out``
+    models: list[PredictionModel] = []
+    if include_true:
+        models.append(from_true(tm, output, "true"))
+    taken = {m.name for m in models} | {"linearised"}
+    kinds = [_run_kind(run) for run in runs]  # every RUN checked before the first export
+    scratch = tempfile.TemporaryDirectory(prefix="softpinn-control-")
+    exported = {}
+    try:
+        for i, run in enumerate(runs):
+            name = _unique(names[i] if names is not None else kinds[i], taken)
+            taken.add(name)
+            export_dir = Path(scratch.name) / _safe(name)
+            pm = from_run(run, output, export_dir=export_dir, name=name, member=member,
+                          mean=mean, compiler=compiler)
+            if (pm.n, pm.m) != (spec.n, spec.m):
+                raise UserError(f"runs: {run} learned a model with n = {pm.n}, m = {pm.m}; "
+                                f"{spec.name} has n = {spec.n}, m = {spec.m}")
+            trained_on = pm.info.get("data_spec")
+            if trained_on and trained_on != spec.name:
+                say(f"note: {run} was trained on data of {trained_on}, not {spec.name}")
+            if export_dir.is_dir():
+                exported[name] = export_dir
+            models.append(pm)
+        if include_linear:
+            models.append(linearised(tm, np.concatenate([qc, np.zeros(spec.n)]), uc, output))
+        out_dir = outputs.claim(out, "control", force=force) if out is not None else None
+        if out_dir is not None:
+            for pm in models:
+                if pm.name in exported:
+                    target = out_dir / "models" / _safe(pm.name)
+                    if target.exists():
+                        shutil.rmtree(target)
+                    target.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.move(str(exported[pm.name]), str(target))
+                    pm.info["export"] = str(target)
+                elif pm.info.get("source") == "export" and pm.info.get("export", "").startswith(
+                        scratch.name):
+                    pm.info["export"] = None
+    finally:
+        scratch.cleanup()
+
+    refs = _references(tm, output, references, dt=config.dt, horizon=config.horizon,
+                       center=center, radius=radius, period=period, hold=hold,
+                       duration=duration)
+    plant_fn = plant(tm, config.dt)
+
+    controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}
+    for pm in models:
+        t0 = time.perf_counter()
+        mpc = MPC(pm, config, operating_point=(qc, np.zeros(spec.n), uc), compiler=compiler)
+        controllers[pm.name] = {**{k: v for k, v in pm.info.items() if k != "x0"},
+                                "build_seconds": time.perf_counter() - t0,
+                                "compiled": bool(mpc.compiled),
+                                "substeps": mpc.substeps,
+                                "compile": mpc.compile_info}
+        for rname, ref in refs.items():
+            res = closed_loop(mpc, plant_fn, ref["x0"], ref["R"], ref["steps"], u0=ref["u0"],
+                              progress=progress)
+            met = metrics(res)
+            results[rname][pm.name] = met
+            traces[rname][pm.name] = res
+            say(_line(rname, pm.name, met, unit))
+
+    result = {
+        "format": FORMAT,
+        "version": 1,
+        "softpinn": __version__,
+        "casadi": _casadi_version(),
+        "model": spec.name,
+        "machine": machine(),
+        "plant": {"integrator": "cvodes", "rtol": 1e-8, "atol": 1e-10,
+                  "feedback": "the exact state (q, qd), no noise", "hold": "zero-order"},
+        "output": {"what": "tip position" if spec.kind in ("spatial-pcc", "planar-pcc")
+                   else "q", "components": components, "unit": unit},
+        "config": dataclasses.asdict(config),
+        "rate": 1.0 / config.dt,
+        "references": {k: v["info"] for k, v in refs.items()},
+        "controllers": controllers,
+        "results": results,
+        "seconds": time.perf_counter() - t_start,
+    }
+    result = _finite(result)
+    if out_dir is not None:
+        from .plots import write_figures
+        from .report import write_report
+
+        written = [_write_json(out_dir / "results.json", result)]
+        written += _write_traces(out_dir, refs, traces, config.dt)
+        figures = write_figures(out_dir / "figures", spec, refs, traces, result)
+        written += [out_dir / f for f in figures]
+        written.append(write_report(out_dir / "report.md", result, figures))
+        outputs.record(out_dir, outputs.written_files(out_dir))
+    result["traces"] = traces
+    return result
+
+
+def _run_kind(run) -> str:
+    """The model kind of a run or export directory (its name in the comparison)."""
+    directory, what = resolve_run(run)
+    try:
+        info = json.loads((directory / ("model.json" if what == "export" else
+                                        "config.json")).read_text())
+        kind = info["kind"] if what == "export" else info["model"]["kind"]
+    except (OSError, ValueError, KeyError, TypeError):
+        raise UserError(f"runs: {run}: its config cannot be read") from None
+    return str(kind)
+
+
+def _precheck_out(out: Path, force: bool) -> None:
+    """The errors :func:`softpinn.bridge.outputs.claim` would give, before anything is done."""
+    from .. import outputs
+
+    if out.exists() and not out.is_dir():
+        raise UserError(f"out: {out} is a file, not a folder")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"out: {out}: {parent} is a file, not a folder")
+            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
+                raise UserError(f"out: {out}: cannot write there (no write permission in "
+                                f"{parent})")
+            break
+    who = outputs.owner(out)
+    if who is not None and who != "control" and not force:
+        outputs.claim(out, "control", force=False)  # raises its one-line error
+
+
+def _casadi_version() -> str:
+    import casadi
+
+    return casadi.__version__
+
+
+def _line(ref: str, name: str, met: dict, unit: str) -> str:
+    def num(v, fmt):
+        return "n/a" if v is None else format(v, fmt)
+
+    fail = f", {met['failures']} failed" if met["failures"] else ""
+    div = ", DIVERGED" if met["diverged"] else ""
+    return (f"{ref} / {name}: error RMS {num(met['error_rms'], '.3g')} {unit}, max "
+            f"{num(met['error_max'], '.3g')} {unit}; solve {num(met['solve_ms_mean'], '.2f')} ms "
+            f"mean, {num(met['solve_ms_max'], '.2f')} ms max{fail}{div}")
+
+
+def _write_json(path: Path, obj) -> Path:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False) + "\n")
+    os.replace(tmp, path)
+    return path
+
+
+def _write_traces(out: Path, refs, traces, dt: float) -> list[Path]:
+    folder = out / "traces"
+    folder.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for rname, per in traces.items():
+        steps = refs[rname]["steps"]
+        arrays = {"r": np.concatenate([refs[rname]["R"][:1], refs[rname]["R"][:steps]]),
+                  "t": np.arange(steps + 1) * dt}
+        for name, res in per.items():
+            key = _safe(name)
+            arrays[f"{key}__y"] = res["y"]
+            arrays[f"{key}__x"] = res["x"]
+            arrays[f"{key}__u"] = res["u"]
+            arrays[f"{key}__seconds"] = res["seconds"]
+            arrays[f"{key}__success"] = res["success"]
+        arrays["names"] = np.array(list(per))
+        path = folder / f"{rname}.npz"
+        tmp = folder / f".{rname}.tmp.npz"
+        np.savez(tmp, **arrays)
+        os.replace(tmp, path)
+        paths.append(path)
+    return paths

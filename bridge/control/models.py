@@ -1,0 +1,184 @@
+"""Prediction models for model-predictive control, all with the same face.
+
+A :class:`PredictionModel` holds an SX vector field ``field(x, u) -> ẋ`` in its own state, a map
+from the measured state (q, q̇) to that state (p = M(q) q̇ for a Hamiltonian network, eq. 7)
+and an output map ``output(q) -> y`` (the arm's tip position, or q itself). Sources:
+
+* :func:`from_export`: a network exported by ``softpinn export`` (its ``field`` and, for a
+  Hamiltonian network, ``M``); :func:`from_run` exports a trained run first;
+* :func:`from_true`: the exact PCC model's ODE (eqs. 13-24), the best case;
+* :func:`linearised`: the true model linearised at one state and input (ẋ = f₀ + Jx Δx + Ju Δu).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..errors import UserError
+
+__all__ = ["PredictionModel", "from_export", "from_run", "from_true", "linearised",
+           "tip_output", "output_label", "resolve_run"]
+
+
+@dataclass
+class PredictionModel:
+    """``field`` (x, u) -> ẋ (an SX Function), ``to_state`` (q, q̇) -> x, ``output`` q -> y.
+
+    ``info``: where the model comes from (kind, run, export directory, seconds to export)."""
+
+    name: str
+    n: int
+    m: int
+    field: ca.Function
+    to_state: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    output: ca.Function
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.field.size1_in(0) != 2 * self.n or self.field.size1_in(1) != self.m:
+            raise UserError(
+                f"prediction model {self.name}: field must take x ({2 * self.n}) and u "
+                f"({self.m}), got ({self.field.size1_in(0)}) and ({self.field.size1_in(1)})"
+            )
+        if self.output.size1_in(0) != self.n:
+            raise UserError(f"prediction model {self.name}: the output map takes "
+                            f"{self.output.size1_in(0)} coordinates, the model has {self.n}")
+
+
+def _sx(fn: ca.Function) -> ca.Function:
+    """An SX copy of ``fn`` (MX functions are expanded: the solvers see plain expressions)."""
+    return fn if fn.is_a("SXFunction") else fn.expand()
+
+
+def tip_output(spec) -> ca.Function:
+    """y(q): the tip of the last segment of a PCC arm (3-D spatial, 2-D planar, in metres);
+    q itself for other models."""
+    q = ca.SX.sym("q", spec.n)
+    last = len(spec.segments) - 1
+    if spec.kind == "spatial-pcc":
+        from softpinn.symbolic.kinematics import spatial_tip
+
+        y = spatial_tip(spec, q, last)[1]
+    elif spec.kind == "planar-pcc":
+        from softpinn.symbolic.kinematics import planar_plate
+
+        y = planar_plate(spec, q, last, 1.0)
+    else:
+        y = q
+    return ca.Function("output", [q], [y], ["q"], ["y"])
+
+
+def output_label(spec) -> tuple[list[str], str]:
+    """Names of the output's components and their unit (for tables and figure axes)."""
+    if spec.kind == "spatial-pcc":
+        return ["x", "y", "z"], "m"
+    if spec.kind == "planar-pcc":
+        return ["x", "y"], "m"
+    unit = "m" if spec.kind == "mass-spring-damper" else "rad"
+    return list(spec.coordinate_names), unit
+
+
+def _identity_state(q, qd):
+    return np.concatenate([np.asarray(q, float).ravel(), np.asarray(qd, float).ravel()])
+
+
+def from_export(directory, output: ca.Function, name: str | None = None) -> PredictionModel:
+    """The exported network in ``directory`` (see :mod:`softpinn.bridge.export`)."""
+    from ..export import load_exported
+
+    directory = Path(directory)
+    fns = load_exported(directory)
+    meta = json.loads((directory / "model.json").read_text())
+    n, m = int(meta["n"]), int(meta["m"])
+    to_state = _identity_state
+    if meta["state_kind"] == "momentum":
+        if "M" not in fns:
+            raise UserError(f"{directory}: a momentum-state model needs M to map q̇ to p")
+        M = fns["M"]
+
+        def to_state(q, qd, M=M):
+            p = np.asarray(M(q)) @ np.asarray(qd, float).ravel()
+            return np.concatenate([np.asarray(q, float).ravel(), p.ravel()])
+
+    info = {"source": "export", "kind": meta["kind"], "state_kind": meta["state_kind"],
+            "export": str(directory), "run": meta.get("run", {}).get("path"),
+            "seeds": meta.get("ensemble", {}).get("seeds"),
+            "data_spec": meta.get("training", {}).get("data_spec")}
+    return PredictionModel(name or meta["kind"], n, m, _sx(fns["field"]), to_state, output,
+                           info)
+
+
+def resolve_run(path) -> tuple[Path, str]:
+    """``(directory, what)`` for a RUN argument: an export directory (``"export"``), a run
+    written by ``softpinn train`` (``"run"``), or a stage folder of ``softpinn reproduce``
+    holding ``run/`` (``"run"``). Anything else is a one-line error."""
+    p = Path(path)
+    if not p.is_dir():
+        raise UserError(f"RUN {p}: not a softpinn run directory (no such directory)")
+    meta = p / "model.json"
+    if meta.is_file():
+        try:
+            fmt = json.loads(meta.read_text()).get("format")
+        except (OSError, ValueError, AttributeError):
+            fmt = None
+        if fmt == "softpinn-export":
+            return p, "export"
+    if (p / "config.json").is_file():
+        return p, "run"
+    if (p / "run" / "config.json").is_file():
+        return p / "run", "run"
+    raise UserError(f"RUN {p}: not a softpinn run directory (no config.json) nor an export "
+                    "directory (no model.json)")
+
+
+def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
+             member: int | None = None, mean: bool = False, force: bool = True,
+             compiler=None) -> PredictionModel:
+    """A trained run (or an export directory) as a prediction model; a run is exported to
+    ``export_dir`` first (:func:`softpinn.bridge.export.export_run`)."""
+    import time
+
+    directory, what = resolve_run(path)
+    seconds = 0.0
+    if what == "run":
+        from ..export import export_run
+
+        t0 = time.perf_counter()
+        export_run(directory, export_dir, member=member, mean=mean, force=force,
+                   compiler=compiler)
+        seconds = time.perf_counter() - t0
+        directory = Path(export_dir)
+    elif member is not None or mean:
+        raise UserError(f"--member/--mean: {path} is an export directory (one model already); "
+                        "export the run again to choose another member")
+    model = from_export(directory, output, name)
+    model.info["export_seconds"] = seconds
+    return model
+
+
+def from_true(true_model, output: ca.Function, name: str = "true") -> PredictionModel:
+    """The exact model (``softpinn.symbolic.TrueModel``): its ``ode`` (x = (q, q̇), u)."""
+    return PredictionModel(name, true_model.n, true_model.m, _sx(true_model.functions["ode"]),
+                           _identity_state, output, {"source": "true", "kind": "true"})
+
+
+def linearised(true_model, x0, u0, output: ca.Function, name: str = "linearised"):
+    """The true ODE linearised at (x0, u0): ẋ ≈ f(x0, u0) + ∂f/∂x (x - x0) + ∂f/∂u (u - u0)."""
+    ode = _sx(true_model.functions["ode"])
+    n, m = true_model.n, true_model.m
+    x, u = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m)
+    f = ode(x, u)
+    jac = ca.Function("linearise", [x, u], [f, ca.jacobian(f, x), ca.jacobian(f, u)])
+    x0, u0 = np.asarray(x0, float).ravel(), np.asarray(u0, float).ravel()
+    f0, Jx, Ju = (np.asarray(v) for v in jac(x0, u0))
+    lin = ca.DM(f0) + ca.mtimes(ca.DM(Jx), x - x0) + ca.mtimes(ca.DM(Ju), u - u0)
+    field_fn = ca.Function("field", [x, u], [lin], ["x", "u"], ["xdot"])
+    return PredictionModel(name, n, m, field_fn, _identity_state, output,
+                           {"source": "linearised", "kind": "linearised",
+                            "x0": x0.tolist(), "u0": u0.tolist()})

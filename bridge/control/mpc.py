@@ -1,0 +1,462 @@
+"""Nonlinear model-predictive control in CasADi: Gauss-Newton SQP from generated C, or IPOPT.
+
+The problem over a horizon of N steps of length dt, for the prediction model's state x:
+
+    min  Σ_k ½ wy ‖y(x_{k+1}) - r_{k+1}‖² + ½ wu ‖u_k - u_ref‖² + ½ wdu ‖u_k - u_{k-1}‖²
+    s.t. x_0 = x̂ (measured), x_{k+1} = RK4(field, x_k, u_k, dt) (input held over the step),
+         u_min <= u_k <= u_max,
+
+with u_{-1} the input applied at the last step. Two solvers:
+
+* ``"sqp"`` (default): Gauss-Newton sequential quadratic programming on the inputs alone
+  (single shooting, condensed). One call of a compiled Function returns the cost, its gradient
+  and the Gauss-Newton Hessian Jᵀ J + wu I + wdu Δᵀ Δ, where J = ∂y/∂u is chained from each
+  stage's exact ∂x⁺/∂x, ∂x⁺/∂u (the RK4 map and its Jacobians, written once as C and called N
+  times); the box-constrained QP is solved by a Cholesky solve when no bound is active, else
+  by a dense QP solver shipped with CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
+  backtracking line search on the cost keeps each step a descent. The Functions are compiled
+  through the project's code cache (:mod:`softpinn.symbolic.codegen`), so a model compiles
+  once per machine; without a C compiler they run in CasADi's virtual machine.
+* ``"ipopt"``: the same problem in multiple shooting with exact Hessians, solved by IPOPT
+  (``casadi.nlpsol``), warm-started from the shifted previous solution; ``codegen=True``
+  compiles its functions with CasADi's ``jit`` (slow to build for large models).
+
+Both warm-start from the previous plan shifted by one step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from ..errors import UserError
+from .models import PredictionModel
+
+__all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS"]
+
+#: the MPC solvers: Gauss-Newton SQP (compiled C, dense QP) and IPOPT (exact Hessian)
+SOLVERS = ("sqp", "ipopt")
+#: dense QP solvers for the SQP's box-constrained steps (all ship with CasADi's wheels)
+QP_SOLVERS = ("daqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
+
+_QP_OPTIONS = {
+    "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
+    "qpoases": {"printLevel": "none", "sparse": False},
+    "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True}},
+    "highs": {"highs": {"output_flag": False}},
+}
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """Horizon, step, RK4 sub-steps of the prediction, weights, input bounds, solver settings.
+
+    Weights: ``weight_y`` on the squared output error (per unit of y², e.g. m²),
+    ``weight_u`` on (u - u_ref)², ``weight_du`` on the squared input change per step.
+    ``max_iter``: SQP iterations (or IPOPT's) per control step; ``tol``: the SQP stops when
+    the largest input change of a step is below it (IPOPT: its tolerance).
+    ``substeps`` is the least number of RK4 sub-steps per control step; with ``stiffness``
+    > 0 and an operating point given to :class:`MPC`, a model whose linearisation there has
+    eigenvalues λ gets more, until h max|λ| <= ``stiffness`` for the sub-step h (RK4 is stable
+    up to about 2.8; learned models can be far stiffer than the arm).
+    """
+
+    horizon: int = 20
+    dt: float = 0.02
+    substeps: int = 2
+    stiffness: float = 1.5
+    weight_y: float = 1e4
+    weight_u: float = 0.0
+    weight_du: float = 1e-2
+    u_ref: tuple[float, ...] | None = None
+    u_min: tuple[float, ...] | None = None
+    u_max: tuple[float, ...] | None = None
+    solver: str = "sqp"
+    qpsol: str = "daqp"
+    max_iter: int = 10
+    tol: float = 1e-6
+    codegen: bool = True
+
+    def __post_init__(self):
+        for name in ("horizon", "substeps", "max_iter"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
+        for name in ("dt", "tol"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise UserError(f"{name}: expected a finite number > 0, got {v!r}")
+        for name in ("weight_y", "weight_u", "weight_du", "stiffness"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
+                raise UserError(f"{name}: expected a finite number >= 0, got {v!r}")
+        if self.weight_y == 0:
+            raise UserError("weight_y: must be > 0 (the output error is what MPC tracks)")
+        if self.solver not in SOLVERS:
+            raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.qpsol not in QP_SOLVERS:
+            raise UserError(f"qpsol: expected one of {', '.join(QP_SOLVERS)}, got "
+                            f"{self.qpsol!r}")
+
+
+def rk4_map(field: ca.Function, dt: float, substeps: int) -> ca.Function:
+    """F(x, u) -> x after ``substeps`` RK4 steps of dt / substeps, input held (SX)."""
+    x = ca.SX.sym("x", field.size1_in(0))
+    u = ca.SX.sym("u", field.size1_in(1))
+    h = dt / substeps
+    y = x
+    for _ in range(substeps):
+        k1 = field(y, u)
+        k2 = field(y + 0.5 * h * k1, u)
+        k3 = field(y + 0.5 * h * k2, u)
+        k4 = field(y + h * k3, u)
+        y = y + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+    return ca.Function("F", [x, u], [y], ["x", "u"], ["x_next"])
+
+
+def _vector(value, m, default, name):
+    if value is None:
+        return np.full(m, float(default))
+    a = np.asarray(value, float).ravel()
+    if a.size == 1:
+        a = np.full(m, float(a[0]))
+    if a.size != m:
+        raise UserError(f"{name}: expected {m} values (one per input) or one, got {a.size}")
+    if np.any(np.isnan(a)):
+        raise UserError(f"{name}: values must be numbers, got {a.tolist()}")
+    return a
+
+
+def _stage_functions(field: ca.Function, dt: float, substeps: int):
+    """``stage(x, u) -> (x⁺, ∂x⁺/∂x, ∂x⁺/∂u)`` and ``roll(x, u) -> x⁺`` for the RK4 map.
+
+    The sensitivities follow RK4's variational equations from the field's own Jacobians (one
+    SX Function ``(f, ∂f/∂x, ∂f/∂u)``, called four times per sub-step), which the generated C
+    holds once: several times smaller than differentiating the unrolled RK4 expression."""
+    nx, m = field.size1_in(0), field.size1_in(1)
+    xs, us = ca.SX.sym("x", nx), ca.SX.sym("u", m)
+    f = field(xs, us)
+    fj = ca.Function("mpc_field_jac", [xs, us], [f, ca.jacobian(f, ca.vertcat(xs, us))])
+    fs = ca.Function("mpc_field", [xs, us], [f])
+    x, u = ca.MX.sym("x", nx), ca.MX.sym("u", m)
+    h = dt / substeps
+    y, S = x, ca.DM(np.hstack([np.eye(nx), np.zeros((nx, m))]))
+    y_roll = x
+
+    def slope(point, sens):
+        k, J = fj(point, u)
+        return k, ca.mtimes(J[:, :nx], sens) + ca.horzcat(ca.MX(nx, nx), J[:, nx:])
+
+    for _ in range(substeps):
+        k1, d1 = slope(y, S)
+        k2, d2 = slope(y + 0.5 * h * k1, S + 0.5 * h * d1)
+        k3, d3 = slope(y + 0.5 * h * k2, S + 0.5 * h * d2)
+        k4, d4 = slope(y + h * k3, S + h * d3)
+        y = y + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+        S = S + (h / 6.0) * (d1 + 2.0 * (d2 + d3) + d4)
+        r1 = fs(y_roll, u)
+        r2 = fs(y_roll + 0.5 * h * r1, u)
+        r3 = fs(y_roll + 0.5 * h * r2, u)
+        r4 = fs(y_roll + h * r3, u)
+        y_roll = y_roll + (h / 6.0) * (r1 + 2.0 * (r2 + r3) + r4)
+    stage = ca.Function("mpc_stage", [x, u], [y, S[:, :nx], S[:, nx:]])
+    roll = ca.Function("mpc_roll", [x, u], [y_roll])
+    return stage, roll
+
+
+def _substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int:
+    """``config.substeps``, raised until h ρ <= ``config.stiffness`` for the spectral radius ρ
+    of ∂f/∂x at the operating point (at most 64 sub-steps)."""
+    if operating_point is None or config.stiffness == 0:
+        return config.substeps
+    q, qd, u = (np.asarray(v, float).ravel() for v in operating_point)
+    x0 = np.asarray(model.to_state(q, qd), float)
+    xs, us = ca.SX.sym("x", 2 * model.n), ca.SX.sym("u", model.m)
+    jac = ca.Function("stiffness", [xs, us], [ca.jacobian(model.field(xs, us), xs)])
+    J = np.asarray(jac(x0, u))
+    if not np.all(np.isfinite(J)):
+        raise UserError(f"prediction model {model.name}: its Jacobian at the operating point "
+                        "is not finite")
+    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
+    need = int(np.ceil(config.dt * rho / config.stiffness))
+    return int(min(max(config.substeps, need), 64))
+
+
+def _difference_matrix(m: int, N: int) -> np.ndarray:
+    """Δ with (Δ U)_k = u_k - u_{k-1} (k >= 1) and (Δ U)_0 = u_0 (u_prev enters separately)."""
+    D = np.eye(N * m)
+    for k in range(1, N):
+        D[k * m:(k + 1) * m, (k - 1) * m:k * m] = -np.eye(m)
+    return D
+
+
+class MPC:
+    """One controller: ``solve(q, qd, reference, u_prev) -> (u, info)``.
+
+    ``reference``: (N, ny) outputs r_1 ... r_N over the horizon. ``info``: ``success``,
+    ``status``, ``iterations``, ``seconds`` (wall time of the solve), ``cost``.
+    ``build_seconds``: the time taken to build (and compile) the solver. ``operating_point``:
+    (q, q̇, u) where the model's stiffness is checked (see :class:`MPCConfig`);
+    ``substeps``: the RK4 sub-steps used.
+    """
+
+    def __init__(self, model: PredictionModel, config: MPCConfig = MPCConfig(), *,
+                 operating_point=None, compiler=None, cache=None):
+        self.model = model
+        self.substeps = _substeps(model, config, operating_point)
+        if self.substeps != config.substeps:
+            config = dataclasses.replace(config, substeps=self.substeps)
+        self.config = config
+        n, m, N = model.n, model.m, config.horizon
+        if m < 1:
+            raise UserError(f"prediction model {model.name}: has no inputs (m = 0); there is "
+                            "nothing to control")
+        self.nx, self.m, self.N = 2 * n, m, N
+        self.ny = model.output.size1_out(0)
+        self._lbu = _vector(config.u_min, m, -np.inf, "u_min")
+        self._ubu = _vector(config.u_max, m, np.inf, "u_max")
+        if np.any(self._lbu > self._ubu):
+            raise UserError(f"u_min {self._lbu.tolist()} exceeds u_max {self._ubu.tolist()}")
+        self._uref = _vector(config.u_ref, m, 0.0, "u_ref")
+        self.compiled = False
+        t0 = time.perf_counter()
+        if config.solver == "sqp":
+            self._build_sqp(compiler, cache)
+        else:
+            self._build_ipopt()
+        self.build_seconds = time.perf_counter() - t0
+        self.reset()
+
+    # ------------------------------------------------------------------ Gauss-Newton SQP
+
+    def _build_sqp(self, compiler, cache):
+        from softpinn.symbolic.codegen import compile_functions
+
+        cfg, mod = self.config, self.model
+        n, nx, m, N, ny = mod.n, self.nx, self.m, self.N, self.ny
+        stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps)
+        xs = ca.SX.sym("x", nx)
+        ys = mod.output(xs[:n])
+        out = ca.Function("mpc_output", [xs], [ys, ca.jacobian(ys, xs)])
+
+        x0, U = ca.MX.sym("x0", nx), ca.MX.sym("U", m, N)
+        R, up = ca.MX.sym("R", ny, N), ca.MX.sym("u_prev", m)
+        sy = np.sqrt(cfg.weight_y)
+        D = _difference_matrix(m, N)
+        uref = np.tile(self._uref, N)
+        Uv = ca.vec(U)
+        e_prev = ca.vertcat(up, ca.MX(m * (N - 1), 1))
+        du = ca.mtimes(ca.DM(D), Uv) - e_prev
+        cost_u = 0.5 * cfg.weight_u * ca.sumsqr(Uv - uref) + 0.5 * cfg.weight_du * ca.sumsqr(du)
+        grad_u = cfg.weight_u * (Uv - uref) + cfg.weight_du * ca.mtimes(ca.DM(D.T), du)
+        hess_u = cfg.weight_u * np.eye(N * m) + cfg.weight_du * D.T @ D
+
+        # gradient and Gauss-Newton Hessian: S = ∂x_{k+1}/∂(u_0 ... u_k), chained stage by stage
+        x, S, res, rows = x0, None, [], []
+        for k in range(N):
+            x, Ak, Bk = stage(x, U[:, k])
+            S = Bk if S is None else ca.horzcat(ca.mtimes(Ak, S), Bk)
+            y, Ck = out(x)
+            res.append(sy * (y - R[:, k]))
+            row = sy * ca.mtimes(Ck, S)
+            if k < N - 1:
+                row = ca.horzcat(row, ca.MX(ny, (N - 1 - k) * m))
+            rows.append(row)
+        r, J = ca.vertcat(*res), ca.vertcat(*rows)
+        f = 0.5 * ca.sumsqr(r) + cost_u
+        g = ca.mtimes(J.T, r) + grad_u
+        H = ca.mtimes(J.T, J) + hess_u
+        gn = ca.Function("mpc_gn", [x0, U, R, up], [f, g, H], ["x0", "U", "R", "u_prev"],
+                         ["f", "g", "H"])
+        # the cost alone (line search), and the predicted outputs (for plots and checks)
+        x, res, ys_all = x0, [], []
+        for k in range(N):
+            x = roll(x, U[:, k])
+            y, _ = out(x)
+            ys_all.append(y)
+            res.append(sy * (y - R[:, k]))
+        fc = 0.5 * ca.sumsqr(ca.vertcat(*res)) + cost_u
+        cost = ca.Function("mpc_cost", [x0, U, R, up], [fc], ["x0", "U", "R", "u_prev"], ["f"])
+        predict = ca.Function("mpc_predict", [x0, U], [ca.horzcat(*ys_all)], ["x0", "U"], ["Y"])
+        fns = {"gn": gn, "cost": cost, "predict": predict}
+        if cfg.codegen:
+            built = compile_functions(fns, compiler=compiler, directory=cache, enable_fd=False)
+            fns, self.compiled = built.functions, built.compiled
+            self.compile_info = {"compiled": built.compiled, "from_cache": built.from_cache,
+                                 "compile_seconds": built.compile_seconds,
+                                 "library": str(built.library) if built.library else None}
+        else:
+            self.compile_info = {"compiled": False}
+        self._gn, self._cost, self._predict = fns["gn"], fns["cost"], fns["predict"]
+        opts = {"error_on_fail": False, **_QP_OPTIONS.get(cfg.qpsol, {})}
+        self._qp = ca.conic("mpc_qp", cfg.qpsol,
+                            {"h": ca.Sparsity.dense(N * m, N * m), "a": ca.Sparsity(0, N * m)},
+                            opts)
+        self._bounded = bool(np.any(np.isfinite(self._lbu)) or np.any(np.isfinite(self._ubu)))
+
+    def _qp_step(self, H, g, Uv):
+        """argmin ½ dᵀ H d + gᵀ d with lbu <= U + d <= ubu; (d, ok)."""
+        try:
+            c = np.linalg.cholesky(H)
+            d = -np.linalg.solve(c.T, np.linalg.solve(c, g))
+        except np.linalg.LinAlgError:
+            d = None
+        lb = np.tile(self._lbu, self.N) - Uv
+        ub = np.tile(self._ubu, self.N) - Uv
+        if d is not None and (not self._bounded or (np.all(d >= lb) and np.all(d <= ub))):
+            return d, True
+        sol = self._qp(h=H, g=g, lbx=lb, ubx=ub)
+        d = np.asarray(sol["x"]).ravel()
+        ok = bool(self._qp.stats().get("success", False)) and bool(np.all(np.isfinite(d)))
+        if ok:  # a solver may report success off the box (qrqp does, on ill-conditioned H)
+            slack = 1e-7 * (1.0 + np.abs(Uv))
+            ok = bool(np.all(d >= lb - slack) and np.all(d <= ub + slack))
+            d = np.clip(d, lb, ub)
+        return d, ok
+
+    def _solve_sqp(self, x0, R, u_prev):
+        cfg, m, N = self.config, self.m, self.N
+        U = self._guess(u_prev)
+        U = np.clip(U, self._lbu[:, None], self._ubu[:, None])
+        status, ok, it, f = "max_iter", True, 0, np.nan
+        for it in range(1, cfg.max_iter + 1):  # noqa: B007 - the count is reported
+            f, g, H = (np.asarray(v) for v in self._gn(x0, U, R, u_prev))
+            f, g = float(f.item()), g.ravel()
+            if not (np.isfinite(f) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
+                status, ok = "non-finite prediction", False
+                break
+            d, qp_ok = self._qp_step(H, g, U.ravel(order="F"))
+            if not qp_ok:
+                status, ok = "QP failed", False
+                break
+            D = d.reshape(m, N, order="F")
+            slope = float(g @ d)
+            alpha, accepted = 1.0, False
+            if slope > -1e-14 * max(1.0, abs(f)):  # no descent left: converged
+                status = "converged"
+                break
+            for _ in range(12):
+                f_new = float(self._cost(x0, U + alpha * D, R, u_prev))
+                if np.isfinite(f_new) and f_new <= f + 1e-4 * alpha * slope:
+                    accepted = True
+                    break
+                alpha *= 0.5
+            if not accepted:
+                status, ok = "line search failed", False
+                break
+            U = U + alpha * D
+            f = f_new
+            if alpha * np.max(np.abs(d)) <= cfg.tol:
+                status = "converged"
+                break
+        self._U = U if ok else None
+        return U[:, 0].copy(), {"success": ok, "status": status, "iterations": it, "cost": f}
+
+    def _guess(self, u_prev):
+        if self._U is None:
+            return np.tile(np.asarray(u_prev, float)[:, None], (1, self.N))
+        return np.concatenate([self._U[:, 1:], self._U[:, -1:]], axis=1)  # shifted by one step
+
+    def predict(self, q, qd, U) -> np.ndarray:
+        """The outputs (N, ny) the prediction model expects for the inputs U (N, m) (SQP)."""
+        if self.config.solver != "sqp":
+            raise UserError("predict: only the sqp solver keeps the prediction function")
+        x0 = np.asarray(self.model.to_state(q, qd), float)
+        return np.asarray(self._predict(x0, np.asarray(U, float).T)).T
+
+    # ------------------------------------------------------------------ IPOPT
+
+    def _build_ipopt(self):
+        cfg, model = self.config, self.model
+        n, nx, m, N, ny = model.n, self.nx, self.m, self.N, self.ny
+        F = rk4_map(model.field, cfg.dt, cfg.substeps)
+        X, U = ca.SX.sym("X", nx, N + 1), ca.SX.sym("U", m, N)
+        x0, R, u_prev = ca.SX.sym("x0", nx), ca.SX.sym("R", ny, N), ca.SX.sym("u_prev", m)
+        cost, last, g = 0, u_prev, [X[:, 0] - x0]
+        for k in range(N):
+            g.append(X[:, k + 1] - F(X[:, k], U[:, k]))
+            e = model.output(X[:n, k + 1]) - R[:, k]
+            cost += 0.5 * (cfg.weight_y * ca.sumsqr(e)
+                           + cfg.weight_u * ca.sumsqr(U[:, k] - self._uref)
+                           + cfg.weight_du * ca.sumsqr(U[:, k] - last))
+            last = U[:, k]
+        g = ca.vertcat(*g)
+        nlp = {"x": ca.vertcat(ca.vec(X), ca.vec(U)), "p": ca.vertcat(x0, ca.vec(R), u_prev),
+               "f": cost, "g": g}
+        opts = {
+            "expand": True,
+            "print_time": False,
+            "error_on_fail": False,
+            "ipopt": {"print_level": 0, "sb": "yes", "max_iter": cfg.max_iter,
+                      "tol": cfg.tol, "warm_start_init_point": "yes",
+                      "mu_strategy": "adaptive"},
+        }
+        if cfg.codegen:
+            opts.update(jit=True, compiler="shell",
+                        jit_options={"flags": ["-O1"], "verbose": False})
+        self.solver = ca.nlpsol("mpc", "ipopt", nlp, opts)
+        self.compiled = cfg.codegen
+        self.compile_info = {"compiled": cfg.codegen, "jit": cfg.codegen}
+        self._lbg = np.zeros(g.shape[0])
+        lbx = np.concatenate([np.full(nx * (N + 1), -np.inf), np.tile(self._lbu, N)])
+        ubx = np.concatenate([np.full(nx * (N + 1), np.inf), np.tile(self._ubu, N)])
+        self._box = (lbx, ubx)
+
+    def _solve_ipopt(self, x0, R, u_prev):
+        nx, m, N = self.nx, self.m, self.N
+        if self._w is None:
+            Xg = np.tile(x0[:, None], (1, N + 1))
+            Ug = np.tile(u_prev[:, None], (1, N))
+        else:
+            Xg = self._w[: nx * (N + 1)].reshape(nx, N + 1, order="F")
+            Ug = self._w[nx * (N + 1):].reshape(m, N, order="F")
+            Xg = np.concatenate([Xg[:, 1:], Xg[:, -1:]], axis=1)
+            Ug = np.concatenate([Ug[:, 1:], Ug[:, -1:]], axis=1)
+        Xg[:, 0] = x0
+        Ug = np.clip(Ug, self._lbu[:, None], self._ubu[:, None])
+        lbx, ubx = self._box
+        args = dict(x0=np.concatenate([Xg.ravel(order="F"), Ug.ravel(order="F")]),
+                    p=np.concatenate([x0, R.ravel(order="F"), u_prev]),
+                    lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._lbg)
+        if self._lam is not None:
+            args.update(lam_g0=self._lam)
+        sol = self.solver(**args)
+        stats = self.solver.stats()
+        w = np.asarray(sol["x"]).ravel()
+        ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(w)))
+        if ok:
+            self._w, self._lam = w, np.asarray(sol["lam_g"]).ravel()
+        else:
+            self._w = self._lam = None
+        u = w[nx * (N + 1): nx * (N + 1) + m] if np.all(np.isfinite(w)) else u_prev
+        return np.asarray(u, float), {"success": ok, "status": stats.get("return_status"),
+                                      "iterations": int(stats.get("iter_count", -1)),
+                                      "cost": float(sol["f"])}
+
+    # ------------------------------------------------------------------ common face
+
+    def reset(self):
+        """Forget the warm start."""
+        self._U = self._w = self._lam = None
+
+    def solve(self, q, qd, reference, u_prev):
+        """The first input of the plan from the measured (q, q̇), and what the solve did."""
+        R = np.asarray(reference, float)
+        if R.shape != (self.N, self.ny):
+            raise UserError(f"reference: expected shape ({self.N}, {self.ny}) (horizon, "
+                            f"outputs), got {R.shape}")
+        u_prev = np.asarray(u_prev, float).reshape(self.m)
+        t0 = time.perf_counter()
+        x0 = np.asarray(self.model.to_state(q, qd), float)
+        if self.config.solver == "sqp":
+            u, info = self._solve_sqp(x0, R.T, u_prev)
+        else:
+            u, info = self._solve_ipopt(x0, R.T, u_prev)
+        info["seconds"] = time.perf_counter() - t0
+        if not np.all(np.isfinite(u)):
+            u, info["success"] = u_prev.copy(), False
+        return u, info

@@ -1,0 +1,158 @@
+"""References for the tip (or q) to follow, and the equilibria they start from.
+
+Every reference is the output y(q(t)) of a path q(t) in the arm's own coordinates, so its shape
+is one the arm can take:
+
+* :func:`circle_reference`: q(t) goes round a circle of radius ``radius`` in the first two
+  coordinates around ``q_center``. For a spatial PCC arm in the delta parameterization
+  (q = [dx, dy, dL, ...]) the tip then draws a closed, horizontal curve around the tip at
+  ``q_center`` (a circle seen from below), with the bend angle constant;
+* :func:`step_reference`: a sequence of targets, each an equilibrium (:func:`equilibrium`: the
+  rest state nearest a desired q that some constant input holds, so an under-actuated system
+  gets targets it can reach), held ``hold`` seconds each.
+
+:func:`default_center` and :func:`default_radius` take the middle and 15 % of the range of the
+initial coordinates in the spec's ``[data]`` table, :func:`default_input_bounds` the range of
+its input signals: the region the models were trained on.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from ..errors import UserError
+
+__all__ = ["circle_reference", "circle_start", "step_reference", "equilibrium", "step_targets",
+           "default_center", "default_radius", "default_input_bounds"]
+
+
+def _data_range(spec):
+    from softpinn.symbolic.datatable import data_config
+
+    try:
+        cfg = data_config(spec)
+    except Exception:  # noqa: BLE001 - a spec without a usable [data] table: no range
+        return None
+    lo, hi = np.asarray(cfg.q0_low, float), np.asarray(cfg.q0_high, float)
+    if lo.size != spec.n or hi.size != spec.n:
+        return None
+    return lo, hi
+
+
+def default_center(spec) -> np.ndarray:
+    """The middle of the spec's ``[data]`` initial coordinates (zeros without a range)."""
+    r = _data_range(spec)
+    return np.zeros(spec.n) if r is None else 0.5 * (r[0] + r[1])
+
+
+def default_radius(spec) -> float:
+    """15 % of the smaller range of the first two initial coordinates (0.1 without one)."""
+    r = _data_range(spec)
+    if r is None or spec.n < 2:
+        return 0.1
+    return float(0.15 * np.min(r[1][:2] - r[0][:2]))
+
+
+def default_input_bounds(spec) -> tuple[np.ndarray, np.ndarray] | None:
+    """(u_min, u_max): the range of the spec's ``[data]`` input signals (offset ± amplitude),
+    widened by a quarter of its width on each side: inputs near those the models were trained
+    on. None when the data table has no offset and amplitude ranges (e.g. no input signal)."""
+    from softpinn.symbolic.datatable import data_config
+
+    try:
+        ranges = data_config(spec).ranges
+    except Exception:  # noqa: BLE001 - no usable [data] table: no bounds
+        return None
+    keys = ("offset_low", "offset_high", "amplitude_high")
+    if not all(k in ranges for k in keys):
+        return None
+    lo = np.asarray(ranges["offset_low"], float) - np.asarray(ranges["amplitude_high"], float)
+    hi = np.asarray(ranges["offset_high"], float) + np.asarray(ranges["amplitude_high"], float)
+    if lo.size != spec.m or hi.size != spec.m:
+        return None
+    pad = 0.25 * (hi - lo)
+    return np.round(lo - pad, 12), np.round(hi + pad, 12)
+
+
+def _circle_q(q_center, radius, period, t):
+    q = np.array(q_center, float)
+    q[0] += radius * np.cos(2 * np.pi * t / period)
+    if q.size > 1:
+        q[1] += radius * np.sin(2 * np.pi * t / period)
+    return q
+
+
+def circle_reference(output: ca.Function, q_center, radius: float, period: float,
+                     times: np.ndarray) -> np.ndarray:
+    """Outputs y(q(t)) (len(times), ny) for q(t) going round a circle in q's first two
+    coordinates (q_center + radius (cos ωt, sin ωt, 0 ...), ω = 2π / period)."""
+    if not (np.isfinite(period) and period > 0):
+        raise UserError(f"period: expected a number of seconds > 0, got {period!r}")
+    return np.array([np.asarray(output(_circle_q(q_center, radius, period, t))).ravel()
+                     for t in np.asarray(times, float)])
+
+
+def circle_start(q_center, radius: float) -> np.ndarray:
+    """q at t = 0 on the circle of :func:`circle_reference`."""
+    return _circle_q(q_center, radius, 1.0, 0.0)
+
+
+def equilibrium(true_model, q_desired, *, weight_u: float = 1e-12
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(q*, u*): the rest state nearest ``q_desired`` that a constant input u* holds
+    (A(q*) u* = G(q*), the static part of eq. 4), from a small NLP (IPOPT). For a fully
+    actuated arm q* = q_desired."""
+    n, m = true_model.n, true_model.m
+    qd = np.asarray(q_desired, float).ravel()
+    if qd.size != n:
+        raise UserError(f"equilibrium: expected {n} coordinates, got {qd.size}")
+    inverse = true_model.functions["inverse"]
+    A = true_model.functions["A"]
+    q, u = ca.SX.sym("q", n), ca.SX.sym("u", m)
+    z = ca.SX.zeros(n)
+    tau = inverse(q, z, z)
+    res = tau - ca.mtimes(A(q), u) if m else tau
+    f = 0.5 * ca.sumsqr(q - qd) + 0.5 * weight_u * ca.sumsqr(u)
+    nlp = {"x": ca.vertcat(q, u), "f": f, "g": res}
+    solver = ca.nlpsol("equilibrium", "ipopt", nlp,
+                       {"print_time": False, "error_on_fail": False,
+                        "ipopt": {"print_level": 0, "sb": "yes", "tol": 1e-12,
+                                  "max_iter": 200}})
+    tau0 = np.asarray(inverse(qd, np.zeros(n), np.zeros(n))).ravel()
+    A0 = np.asarray(A(qd)).reshape(n, m)
+    u0 = np.linalg.lstsq(A0, tau0, rcond=None)[0] if m else np.zeros(0)
+    if np.linalg.norm(A0 @ u0 - tau0) <= 1e-12 * (1.0 + np.linalg.norm(tau0)):
+        return qd, u0  # q_desired is a rest state already (a fully actuated arm)
+    sol = solver(x0=np.concatenate([qd, u0]), lbg=0, ubg=0)
+    w = np.asarray(sol["x"]).ravel()
+    viol = np.max(np.abs(np.asarray(sol["g"]))) if n else 0.0
+    if not (solver.stats()["success"] and np.all(np.isfinite(w)) and viol < 1e-8):
+        raise UserError(f"equilibrium: no rest state found near q = {qd.tolist()} "
+                        f"({solver.stats()['return_status']})")
+    return w[:n], w[n:]
+
+
+def step_targets(q_center, radius: float) -> list[np.ndarray]:
+    """Desired q of a step reference: the centre moved by ± radius along q's first two
+    coordinates, in the order +e₀, +e₁, -e₀, -e₁."""
+    c = np.asarray(q_center, float)
+    out = []
+    for sign, axis in ((1, 0), (1, 1), (-1, 0), (-1, 1)):
+        if axis < c.size:
+            q = c.copy()
+            q[axis] += sign * radius
+            out.append(q)
+    return out
+
+
+def step_reference(output: ca.Function, q_targets, hold: float, times: np.ndarray) -> np.ndarray:
+    """Outputs y(q_i) held ``hold`` seconds each, cycling through ``q_targets``: the row for
+    time t is target ⌈t / hold⌉ - 1 (mod the number of targets), so target 0 holds on
+    (0, hold], target 1 on (hold, 2 hold], ..."""
+    if not (np.isfinite(hold) and hold > 0):
+        raise UserError(f"hold: expected a number of seconds > 0, got {hold!r}")
+    targets = [np.asarray(output(np.asarray(q, float))).ravel() for q in q_targets]
+    idx = np.maximum(np.ceil(np.asarray(times, float) / hold - 1e-9).astype(int) - 1, 0)
+    idx = idx % len(targets)
+    return np.array([targets[i] for i in idx])

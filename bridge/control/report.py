@@ -1,0 +1,91 @@
+"""``report.md`` of a control comparison: the setting, one table per reference, the figures."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+__all__ = ["write_report"]
+
+
+def _num(v, fmt=".3g"):
+    return "n/a" if v is None else format(v, fmt)
+
+
+def write_report(path, result: dict, figures: list[str]) -> Path:
+    """Write the report for ``result`` (what :func:`~.compare.compare` returns) to ``path``."""
+    path = Path(path)
+    cfg = result["config"]
+    unit = result["output"]["unit"]
+    def vec(v):
+        if v is None:
+            return "none"
+        return "[" + ", ".join("unbounded" if x is None else f"{x:.4g}" for x in v) + "]"
+
+    bounds = ("none" if cfg["u_min"] is None and cfg["u_max"] is None
+              else f"u_min {vec(cfg['u_min'])}, u_max {vec(cfg['u_max'])}")
+    lines = [
+        f"# Model-predictive control of {result['model']}",
+        "",
+        f"The plant is the true model ({result['plant']['integrator']}, rtol "
+        f"{result['plant']['rtol']:g}), fed back {result['plant']['feedback']}; each controller "
+        f"predicts with its own model. MPC at {result['rate']:g} Hz (dt {cfg['dt']:g} s), horizon "
+        f"{cfg['horizon']} ({cfg['horizon'] * cfg['dt']:g} s), RK4 with {cfg['substeps']} "
+        f"sub-step(s) per step, solver {cfg['solver']}"
+        + (f" (Gauss-Newton SQP, QP {cfg['qpsol']}, at most {cfg['max_iter']} iterations)"
+           if cfg["solver"] == "sqp" else f" (at most {cfg['max_iter']} iterations)")
+        + f"; weights: output {cfg['weight_y']:g}, input {cfg['weight_u']:g}, input change "
+        f"{cfg['weight_du']:g}; input bounds: {bounds}.",
+        "",
+        f"Output: {result['output']['what']} ({', '.join(result['output']['components'])}, "
+        f"{unit}). Machine: {result['machine']}. CasADi {result['casadi']}, softpinn "
+        f"{result['softpinn']}. Wall time {result['seconds']:.1f} s.",
+        "",
+        "## Controllers",
+        "",
+        "| controller | source | compiled C | build [s] |",
+        "|---|---|---|---|",
+    ]
+    for name, c in result["controllers"].items():
+        src = c.get("run") or c.get("source")
+        if c.get("source") == "linearised":
+            src = "true model linearised at the centre's equilibrium"
+        elif c.get("source") == "true":
+            src = "true model (best case)"
+        lines.append(f"| {name} | {src} | {'yes' if c.get('compiled') else 'no'} | "
+                     f"{_num(c.get('build_seconds'), '.1f')} |")
+    for rname, per in result["results"].items():
+        ref = result["references"][rname]
+        extra = (f"period {ref['period']:g} s" if ref["kind"] == "circle"
+                 else f"each target held {ref['hold']:g} s")
+        lines += [
+            "",
+            f"## Reference: {rname}",
+            "",
+            f"{ref['kind']} of radius {ref['radius']:g} in q's first two coordinates around q = "
+            f"{[round(v, 4) for v in ref['center']]}, {extra}; {ref['duration']:g} s "
+            f"({ref['steps']} steps), starting at rest at q = "
+            f"{[round(v, 4) for v in ref['q0']]}.",
+            "",
+            f"| controller | error RMS [{unit}] | error max [{unit}] | final [{unit}] | "
+            "input RMS | input change RMS | failures | SQP iterations | solve mean [ms] | "
+            "p95 [ms] | max [ms] |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
+        ]
+        for name, m in per.items():
+            fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
+            lines.append(
+                f"| {name} | {_num(m['error_rms'])} | {_num(m['error_max'])} | "
+                f"{_num(m['error_final'])} | {_num(m['effort_rms'])} | "
+                f"{_num(m['effort_rate_rms'])} | {fail} | {_num(m['iterations_mean'], '.2g')} | "
+                f"{_num(m['solve_ms_mean'], '.2f')} | {_num(m['solve_ms_p95'], '.2f')} | "
+                f"{_num(m['solve_ms_max'], '.2f')} |")
+        lines.append("")
+        for f in figures:
+            if f.endswith(f"_{rname}.png"):
+                lines.append(f"![{Path(f).stem}]({f})")
+    lines += ["", "Time series: `traces/<reference>.npz`; all numbers: `results.json`.", ""]
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text("\n".join(lines))
+    os.replace(tmp, path)
+    return path

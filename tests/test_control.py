@@ -1,0 +1,298 @@
+"""Model-predictive control (bridge/control, `softpinn control`): the MPC with the true model
+converges to reachable references and tracks a circle, the Gauss-Newton SQP finds IPOPT's
+optimum, input bounds hold, a stiff model gets more RK4 sub-steps, learned models exported from
+tiny runs close the loop with finite metrics and written results, and bad inputs give one-line
+errors with exit status 2 and leave --out alone."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from datagen import make_dataset, tiny_model_config
+
+from softpinn.bridge import cli
+from softpinn.bridge.control import (
+    MPC,
+    MPCConfig,
+    closed_loop,
+    compare,
+    equilibrium,
+    from_run,
+    from_true,
+    metrics,
+    plant,
+    resolve_run,
+    step_reference,
+    tip_output,
+)
+from softpinn.bridge.control.models import PredictionModel
+from softpinn.bridge.errors import UserError
+from softpinn.symbolic.model import TrueModel
+
+#: the two-mass chain of task 1 with a force on the second mass: the system tests/datagen.py
+#: simulates, so runs trained on its data are models of this spec
+FORCED = """
+name = "test-msd"
+kind = "mass-spring-damper"
+masses = [1.0, 1.8]
+springs = [2.1, 4.6]
+dampers = [0.3, 0.0]
+actuation = [[0.0], [1.0]]
+"""
+#: the same chain with a force on each mass (fully actuated)
+FULL = FORCED.replace("test-msd", "msd-full").replace("[[0.0], [1.0]]", '"generalized"')
+
+
+@pytest.fixture(autouse=True)
+def _private_cache(tmp_path_factory, monkeypatch):
+    """Compiled libraries go to a cache of this test session, not the user's."""
+    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+@pytest.fixture(scope="module")
+def specs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("specs")
+    (root / "forced.toml").write_text(FORCED)
+    (root / "full.toml").write_text(FULL)
+    return {"forced": str(root / "forced.toml"), "full": str(root / "full.toml")}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """``get(kind, seeds=1)``: a tiny run on the forced chain's data, trained once per module."""
+    from softpinn.learn.train import TrainConfig, train
+
+    data = make_dataset(tmp_path_factory.mktemp("msd") / "msd.npz", trajectories=3,
+                        duration=2.0)
+    root = tmp_path_factory.mktemp("runs")
+    cache = {}
+
+    def get(kind, seeds=1):
+        if (kind, seeds) not in cache:
+            cfg = TrainConfig(model=tiny_model_config(kind), epochs=3, batch_size=64, lr=1e-2,
+                              test_trajectories=(2,), seeds=seeds, checkpoint_every=1000)
+            out = root / f"{kind}-{seeds}"
+            train(data, cfg, out)
+            cache[kind, seeds] = out
+        return cache[kind, seeds]
+
+    return get
+
+
+def _loop(spec, q_target, *, steps, config, q0=None):
+    tm = TrueModel(spec)
+    out = tip_output(tm.spec)
+    q_star, u_star = equilibrium(tm, q_target)
+    mpc = MPC(from_true(tm, out), config)
+    R = np.tile(np.asarray(out(q_star)).ravel(), (steps + config.horizon, 1))
+    q0 = np.zeros(tm.n) if q0 is None else np.asarray(q0, float)
+    res = closed_loop(mpc, plant(tm, config.dt), np.concatenate([q0, np.zeros(tm.n)]), R,
+                      steps, u0=np.zeros(tm.m))
+    return tm, q_star, u_star, res
+
+
+def test_equilibria_are_reachable_targets(specs):
+    """A fully actuated arm rests anywhere; the single-input chain only on K q = A u."""
+    q, u = equilibrium(TrueModel(specs["full"]), [0.3, -0.2])
+    np.testing.assert_allclose(q, [0.3, -0.2], atol=1e-7)
+    tm = TrueModel(specs["forced"])
+    q, u = equilibrium(tm, [0.3, 0.1])
+    K = np.array([[2.1, -2.1], [-2.1, 6.7]])
+    np.testing.assert_allclose(K @ q, [0.0, u[0]], atol=1e-8)
+    assert q[0] == pytest.approx(q[1], abs=1e-8)  # force on mass 2: spring 1 unstretched
+
+
+def test_true_model_converges_to_a_step(specs):
+    """Compiled Gauss-Newton SQP, fully actuated chain: the target within 1e-6 in 2 s."""
+    cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3)
+    _, q_star, u_star, res = _loop(specs["full"], [0.3, -0.2], steps=40, config=cfg)
+    m = metrics(res)
+    assert m["failures"] == 0 and not m["diverged"] and m["steps"] == 40
+    assert m["error_final"] < 1e-6, m
+    np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)  # it holds the rest input
+    assert m["solve_ms_mean"] > 0 and m["iterations_mean"] >= 1
+
+
+def test_true_model_tracks_a_reachable_step_of_the_underactuated_chain(specs):
+    """One force on the second mass: the equilibrium target is reached to a small error."""
+    cfg = MPCConfig(horizon=30, dt=0.1, weight_y=1e2, codegen=False)
+    _, q_star, _, res = _loop(specs["forced"], [0.3, 0.1], steps=100, config=cfg)
+    e = np.linalg.norm(res["y"] - res["r"], axis=1)
+    assert metrics(res)["failures"] == 0
+    assert e[0] > 0.25 and e[-1] < 1e-3, e[::10]
+    assert np.max(e[-20:]) < 1e-2
+
+
+def test_sqp_finds_the_ipopt_optimum(specs):
+    """Both solvers minimise the same problem: the same first input to 1e-6."""
+    tm = TrueModel(specs["forced"])
+    out = tip_output(tm.spec)
+    R = np.tile([0.3, 0.3], (10, 1))
+    q, qd = np.array([0.1, -0.1]), np.array([0.2, 0.0])
+    u = {}
+    for solver in ("sqp", "ipopt"):
+        cfg = MPCConfig(horizon=10, dt=0.05, solver=solver, codegen=False, tol=1e-10,
+                        max_iter=100, u_min=(-3.0,), u_max=(3.0,))
+        u[solver], info = MPC(from_true(tm, out), cfg).solve(q, qd, R, np.zeros(1))
+        assert info["success"], info
+    np.testing.assert_allclose(u["sqp"], u["ipopt"], atol=1e-6)
+
+
+def test_input_bounds_hold(specs):
+    cfg = MPCConfig(horizon=10, dt=0.05, u_min=(-0.5,), u_max=(0.7,), codegen=False)
+    _, _, _, res = _loop(specs["forced"], [0.3, 0.3], steps=20, config=cfg)
+    assert metrics(res)["failures"] == 0
+    assert res["u"].max() <= 0.7 + 1e-9 and res["u"].min() >= -0.5 - 1e-9
+    assert res["u"].max() == pytest.approx(0.7)  # the bound is active at the start
+
+
+def test_a_stiff_model_gets_more_substeps(specs):
+    import casadi as ca
+
+    tm = TrueModel(specs["forced"])
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 1)
+    stiff = ca.Function("field", [x, u], [ca.vertcat(x[2:], -500.0 * x[2:] + u)])
+    model = PredictionModel("stiff", 2, 1, stiff, lambda q, qd: np.concatenate([q, qd]),
+                            tip_output(tm.spec))
+    cfg = MPCConfig(horizon=5, dt=0.02, substeps=1, codegen=False)
+    point = (np.zeros(2), np.zeros(2), np.zeros(1))
+    assert MPC(model, cfg, operating_point=point).substeps == 7  # 0.02 * 500 / 1.5
+    assert MPC(model, cfg).substeps == 1
+
+
+def test_circle_on_a_spatial_arm():
+    """task 4 with the true model: the tip follows a horizontal circle to a tenth of a mm."""
+    result = compare("task4", [], None, references=("circle",), duration=0.4,
+                     config=MPCConfig(horizon=10), include_linear=False)
+    m = result["results"]["circle"]["true"]
+    assert m["failures"] == 0 and m["steps"] == 20
+    assert m["error_max"] < 1e-4, m
+    y = result["traces"]["circle"]["true"]["y"]
+    assert y.shape == (21, 3)
+    np.testing.assert_allclose(np.linalg.norm(y[:, :2], axis=1), np.linalg.norm(y[0, :2]),
+                               rtol=1e-2)  # round the vertical axis
+
+
+def test_step_reference_switches_after_each_hold():
+    import casadi as ca
+
+    q = ca.SX.sym("q", 1)
+    out = ca.Function("output", [q], [q])
+    R = step_reference(out, [[1.0], [2.0]], 0.5, np.arange(1, 9) * 0.25)
+    assert R.ravel().tolist() == [1, 1, 2, 2, 1, 1, 2, 2]
+
+
+def test_learned_models_close_the_loop(specs, runs, tmp_path):
+    """Tiny Lagrangian and Hamiltonian runs, exported in-process, steer the chain; everything
+    is written and every metric is a finite number."""
+    out = tmp_path / "ctl"
+    cfg = MPCConfig(horizon=8, dt=0.05, u_min=(-5.0,), u_max=(5.0,), codegen=False)
+    result = compare(specs["forced"], [runs("lagrangian"), runs("hamiltonian")], out,
+                     config=cfg, duration=0.5)
+    assert list(result["controllers"]) == ["true", "lagrangian", "hamiltonian", "linearised"]
+    for rname in ("circle", "step"):
+        for name, m in result["results"][rname].items():
+            assert m["steps"] == 10 and not m["diverged"], (rname, name)
+            for key in ("error_rms", "error_max", "effort_rms", "solve_ms_mean", "solve_ms_max"):
+                assert np.isfinite(m[key]), (rname, name, key)
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["format"] == "softpinn-control" and "traces" not in saved
+    assert saved["controllers"]["hamiltonian"]["state_kind"] == "momentum"
+    for f in ("report.md", "traces/circle.npz", "figures/paths_circle.png",
+              "figures/tracking_step.png", "figures/solve_circle.png",
+              "figures/inputs_step.png", "models/lagrangian/model.json"):
+        assert (out / f).is_file(), f
+    with np.load(out / "traces" / "step.npz") as traces:
+        assert traces["lagrangian__u"].shape == (10, 1)
+        assert traces["t"][-1] == pytest.approx(0.5)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["command"] == "control" and "results.json" in manifest["files"]
+    report = (out / "report.md").read_text()
+    assert "| hamiltonian |" in report and "![paths_circle](figures/paths_circle.png)" in report
+
+
+def test_hamiltonian_state_is_momentum(specs, runs, tmp_path):
+    from softpinn.learn import load_run
+
+    tm = TrueModel(specs["forced"])
+    model = from_run(runs("hamiltonian"), tip_output(tm.spec), export_dir=tmp_path / "x")
+    q, qd = np.array([0.2, -0.1]), np.array([0.3, 0.4])
+    M = np.asarray(load_run(runs("hamiltonian")).model.matrices(q)["M"])
+    np.testing.assert_allclose(model.to_state(q, qd), np.concatenate([q, M @ qd]), atol=1e-10)
+    # an export directory is a RUN too
+    assert resolve_run(tmp_path / "x") == (tmp_path / "x", "export")
+
+
+def _cli(capsys, *argv):
+    status = cli.main(["control", *map(str, argv)])
+    captured = capsys.readouterr()
+    return status, captured.out, captured.err
+
+
+def test_cli_control(specs, runs, tmp_path, capsys):
+    args = ("--reference", "step", "--duration", "0.2", "--horizon", "5", "--rate", "20",
+            "--quiet")
+    status, out, err = _cli(capsys, specs["forced"], "--runs", runs("lagrangian"), "--out",
+                            tmp_path / "ok", *args)
+    assert status == 0 and err == "", err
+    assert "step:" in out and "lagrangian" in out and "wrote" in out
+    assert (tmp_path / "ok" / "report.md").is_file()
+    # a rerun into its own folder needs no --force
+    status, out, _ = _cli(capsys, specs["forced"], "--out", tmp_path / "ok", "--json", *args)
+    assert status == 0 and json.loads(out)["model"] == "test-msd"
+
+
+def test_cli_bad_inputs(specs, runs, tmp_path, capsys):
+    run = runs("lagrangian")
+
+    def error(*argv):
+        status, _, err = _cli(capsys, *argv)
+        assert status == 2 and err.startswith("softpinn: error: ") and err.count("\n") == 1, err
+        assert "Traceback" not in err
+        return err
+
+    a = tmp_path / "a"
+    (tmp_path / "empty").mkdir()
+    assert "not a softpinn run directory" in error(specs["forced"], "--runs", tmp_path / "empty",
+                                                   "--out", a)
+    assert "no such directory" in error(specs["forced"], "--runs", tmp_path / "nope", "--out", a)
+    err = error(specs["forced"], "--runs", run, "--member", 5, "--out", a)
+    assert "--member 5" in err and "single-model run" in err
+    assert "has no inputs" in error("task1", "--out", a)
+    assert "--center: expected 2" in error(specs["forced"], "--center", 0.1, "--out", a)
+    assert "--u-min: expected 1 values" in error(specs["forced"], "--u-min", 1, 2, "--out", a)
+    assert "--rate" in error(specs["forced"], "--rate", 0, "--out", a)
+    assert "--horizon: expected an integer >= 1" in error(specs["forced"], "--horizon", 0,
+                                                          "--out", a)
+    (tmp_path / "file").write_text("x")
+    assert "is a file" in error(specs["forced"], "--out", tmp_path / "file")
+    assert "is a file" in error(specs["forced"], "--out", tmp_path / "file" / "sub")
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "notes.txt").write_text("mine")
+    err = error(specs["forced"], "--out", user, "--duration", "0.1")
+    assert "--out" in err and "--force" in err
+    assert not a.exists()  # nothing was written for a bad input
+    if os.geteuid() != 0:  # root writes anywhere
+        ro = tmp_path / "ro"
+        ro.mkdir(mode=0o500)
+        assert "cannot write there" in error(specs["forced"], "--out", ro / "sub")
+    status, _, _ = _cli(capsys, specs["forced"], "--out", user, "--force", "--duration", "0.1",
+                        "--quiet", "--reference", "step", "--no-linear")
+    assert status == 0 and (user / "notes.txt").read_text() == "mine"
+
+
+def test_library_errors_are_user_errors(specs):
+    with pytest.raises(UserError, match="weight_y: must be > 0"):
+        MPCConfig(weight_y=0)
+    with pytest.raises(UserError, match="qpsol: expected one of"):
+        MPCConfig(qpsol="nope")
+    with pytest.raises(UserError, match="reference: expected one of"):
+        compare(specs["forced"], [], None, references=("square",))
+    tm = TrueModel(specs["forced"])
+    mpc = MPC(from_true(tm, tip_output(tm.spec)), MPCConfig(horizon=4, codegen=False))
+    with pytest.raises(UserError, match=r"reference: expected shape \(4, 2\)"):
+        mpc.solve(np.zeros(2), np.zeros(2), np.zeros((3, 2)), np.zeros(1))
