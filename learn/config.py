@@ -24,9 +24,10 @@ ENSEMBLE_MODES = ("auto", "vmap", "sequential")
 SEED_MAX = 2**32 - 1
 INPUT_HOLDS = ("constant", "linear")
 #: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
-GROUPS = ("budget", "optimizer", "loss", "split", "ensemble")
+GROUPS = ("budget", "optimizer", "loss", "split", "ensemble", "devices")
 #: Settings that may change when a run is resumed (the others would make it another run).
-RESUMABLE = ("epochs", "patience", "eval_every", "checkpoint_every", "lbfgs_steps", "lbfgs_chunk")
+RESUMABLE = ("epochs", "patience", "eval_every", "checkpoint_every", "lbfgs_steps", "lbfgs_chunk",
+             "devices")
 
 
 def _f(default, group: str, help: str, choices: tuple[str, ...] | None = None):
@@ -113,6 +114,9 @@ class TrainConfig:
     checkpoint_every: int = _f(25, "budget", "write a checkpoint every N epochs")
     lbfgs_steps: int = _f(0, "budget", "L-BFGS iterations after AdamW (0: none)")
     lbfgs_chunk: int = _f(10, "budget", "L-BFGS iterations per compiled call")
+    # devices
+    devices: int = _f(1, "devices", "devices (GPUs, or CPU devices) to split each minibatch "
+                      "over, data parallel on one host; 0: all there are")
 
     def __post_init__(self):
         if not isinstance(self.model, ModelConfig):
@@ -134,7 +138,7 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
-        for name in ("lbfgs_steps", "seed", "split_seed"):
+        for name in ("lbfgs_steps", "seed", "split_seed", "devices"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise UserError(f"{name}: expected an integer >= 0, got {v!r}")
@@ -202,10 +206,17 @@ class TrainConfig:
             raise UserError(f"group: expected one of {list(GROUPS)}, got {name!r}")
         return {f.name: getattr(self, f.name) for f in self.settings(name)}
 
-    def batch_for(self, pairs: int) -> int:
-        """The minibatch size for ``pairs`` training pairs (see ``batch_size``)."""
+    def batch_for(self, pairs: int, devices: int = 1) -> int:
+        """The minibatch size for ``pairs`` training pairs (see ``batch_size``), a multiple of
+        ``devices`` (each device gets an equal share; rounded down)."""
         batch = self.batch_size if self.batch_size is not None else max(64, pairs // 100)
-        return max(1, min(batch, pairs))
+        batch = max(1, min(batch, pairs))
+        if devices > 1:
+            if batch < devices:
+                raise UserError(f"devices: {devices} devices need a minibatch of at least "
+                                f"{devices} pairs, got {batch}")
+            batch -= batch % devices
+        return batch
 
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}

@@ -27,6 +27,7 @@ from .data import (
     PairData,
     WindowData,
 )
+from .errors import UserError
 from .losses import (
     Pairs,
     Windows,
@@ -177,11 +178,37 @@ def resolve_ensemble_mode(mode: str, seeds: int) -> str:
     return "sequential" if jax.default_backend() == "cpu" else "vmap"
 
 
+def resolve_devices(devices: int) -> int:
+    """The number of devices a run uses: ``devices``, or all there are for 0; refused with one
+    line when more are asked for than there are."""
+    have = jax.device_count()
+    use = have if devices == 0 else devices
+    if use > have:
+        hint = (" (on a CPU, XLA_FLAGS=--xla_force_host_platform_device_count=N before Python "
+                "starts makes N devices)" if jax.default_backend() == "cpu" else "")
+        raise UserError(f"devices: {use} asked for, {have} {jax.default_backend()} device(s) "
+                        f"here{hint}")
+    return use
+
+
+def batch_sharding(devices: int):
+    """How a minibatch is laid out over ``devices``: split along its first axis (data
+    parallel); None for one device. The parameters stay replicated, and XLA reduces the
+    gradients over the devices (no hand-written all-reduce)."""
+    if devices <= 1:
+        return None
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    mesh = Mesh(np.asarray(jax.devices()[:devices]), ("data",))
+    return NamedSharding(mesh, PartitionSpec("data"))
+
+
 class Programs:
     """The jitted functions of one run, built once and shared by all groups of members."""
 
-    def __init__(self, config, static, train, test, n_train, batch):
+    def __init__(self, config, static, train, test, n_train, batch, devices: int = 1):
         self.config = config
+        self.devices = devices
         self.static = static
         self.train = train
         self.test = test
@@ -197,13 +224,19 @@ class Programs:
         self._loss_params = loss_params
         grad_fn = jax.value_and_grad(loss_params)
 
+        sharding = batch_sharding(devices)
+
+        def take(a, ix):
+            b = a[ix]
+            return b if sharding is None else jax.lax.with_sharding_constraint(b, sharding)
+
         def one_epoch(params, opt_state, key, epoch, lr, train):
             perm = jax.random.permutation(jax.random.fold_in(key, epoch), n_train)
             idx = perm[: self.steps * batch].reshape(self.steps, batch)
 
             def body(carry, ix):
                 p, s = carry
-                b = jax.tree.map(lambda a: a[ix], train)
+                b = jax.tree.map(lambda a: take(a, ix), train)
                 loss, g = grad_fn(p, b)
                 updates, s = self.opt.update(g, s, p)
                 p = optax.apply_updates(p, jax.tree.map(lambda u: lr * u, updates))
@@ -310,14 +343,16 @@ class ProgramCache:
         "eval_every",
         "checkpoint_every",
         "lbfgs_steps",
+        "devices",  # the resolved count is part of the key
     )
 
     def __init__(self, size: int = 8):
         self.size = size
         self.entries: dict[tuple, Programs] = {}
 
-    def get(self, config, train_pairs, test_pairs, n_train, batch) -> Programs:
-        """The programs for ``config`` and these pair shapes: cached, or compiled now."""
+    def get(self, config, train_pairs, test_pairs, n_train, batch, devices: int = 1) -> Programs:
+        """The programs for ``config`` and these pair shapes on ``devices`` devices: cached, or
+        compiled now."""
         shapes = tuple(
             None if a is None else (a.shape, str(a.dtype)) for a in (*train_pairs, *test_pairs)
         )
@@ -326,12 +361,12 @@ class ProgramCache:
             for f in dataclasses.fields(config)
             if f.name not in self.UNCOMPILED
         )
-        key = (fields, shapes, n_train, batch)
+        key = (fields, shapes, n_train, batch, devices)
         prog = self.entries.get(key)
         if prog is None:
             template = make_model(config.model, key=jax.random.PRNGKey(0))
             static = eqx.partition(template, eqx.is_array)[1]
-            prog = Programs(config, static, train_pairs, test_pairs, n_train, batch)
+            prog = Programs(config, static, train_pairs, test_pairs, n_train, batch, devices)
             if len(self.entries) >= self.size:
                 self.entries.pop(next(iter(self.entries)))
             self.entries[key] = prog

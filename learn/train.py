@@ -49,7 +49,14 @@ from .ensemble import (
 )
 from .errors import UserError
 from .models import ensure_dtype
-from .programs import PROGRAMS, ProgramCache, resolve_ensemble_mode, to_pairs, to_windows
+from .programs import (
+    PROGRAMS,
+    ProgramCache,
+    resolve_devices,
+    resolve_ensemble_mode,
+    to_pairs,
+    to_windows,
+)
 from .rundir import (
     LoadedRun,
     aggregate_metrics,
@@ -233,12 +240,13 @@ def train(
             train_np = train_np._replace(xdot0=None)
             test_np = test_np._replace(xdot0=None)
         train_pairs, test_pairs = to_pairs(train_np, dtype), to_pairs(test_np, dtype)
-    batch = config.batch_for(train_np.count)
+    devices = resolve_devices(config.devices)
+    batch = config.batch_for(train_np.count, devices)
     if not resume:
         for message in setting_warnings(config, data, train_np.count, batch):
             (warn or warn_setting)(message)
 
-    prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch)
+    prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch, devices)
 
     seeds = [config.seed + i for i in range(config.seeds)]
     mode = resolve_ensemble_mode(config.ensemble, config.seeds)
@@ -251,6 +259,7 @@ def train(
         "dataset": dataset_info(data),
         "split": {"train": train_ids.tolist(), "test": test_ids.tolist()},
         "pairs": {"train": train_np.count, "test": test_np.count, "batch": batch},
+        "devices": devices,
         "steps_per_epoch": prog.steps,
         "ensemble_mode": mode,
     }

@@ -21,6 +21,21 @@ def _model_defaults() -> dict:
     return {f.name: f.default for f in dataclasses.fields(ModelConfig)}
 
 
+def _devices(text: str) -> int:
+    """--devices N or all (0)."""
+    import argparse
+
+    if text == "all":
+        return 0
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a count or 'all', got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1 or 'all', got {value}")
+    return value
+
+
 def add_setting_flags(parser) -> None:
     """One flag per :class:`learn.config.TrainConfig` setting, in argument groups (budget,
     optimizer, loss, split, ensemble), with the field's default, help and choices: the defaults
@@ -40,7 +55,9 @@ def add_setting_flags(parser) -> None:
             if isinstance(hint, types.UnionType):
                 hint = next(a for a in typing.get_args(hint) if a is not type(None))
             kw = {"default": f.default, "help": f.metadata["help"].replace("%", "%%")}
-            if f.metadata.get("choices"):
+            if f.name == "devices":
+                kw.update(type=_devices, metavar="N|all")
+            elif f.metadata.get("choices"):
                 kw["choices"] = f.metadata["choices"]
             else:
                 kw["type"] = hint
@@ -347,6 +364,9 @@ def cmd_train(args) -> int:
             **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
                if f.name not in _CUSTOM},
         )
+    from softpinn.learn.programs import resolve_devices
+
+    resolve_devices(config.devices)  # before the bar: a refusal is one line
     bar = _Bar(config.epochs * config.seeds, disable=args.quiet)
     bar.start()
     try:
