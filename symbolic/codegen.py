@@ -11,19 +11,27 @@ Compiled libraries are cached by a SHA-256 hash of every function's ``serialize(
 with the compiler, its flags and the CasADi version, in a cache directory (argument, else the
 environment variable ``SOFTPINN_CACHE``, else ``~/.cache/softpinn``). A library is compiled to a
 temporary file and installed with :func:`os.replace`, so a concurrent or interrupted compile never
-leaves a broken file behind. A compiler that runs past its timeout is killed with its whole process
-group (``cc1`` survives a plain kill). If no C compiler is found, :func:`compiled` falls back to
-CasADi's SX/MX virtual machine and warns once (per compiler setting and process).
+leaves a broken file behind. The compiler runs in its own process group under a small supervisor:
+at its timeout, on an interrupt (Ctrl-C) or any other error the whole group is killed (``cc1``
+survives a plain kill), and when this process dies without a chance to clean up (SIGKILL,
+SIGTERM) the supervisor is told by the kernel (``PR_SET_PDEATHSIG``) and kills the group itself,
+so no compiler outlives the command. Temporary build folders carry their writer's
+``<pid>@<host>``; one whose process is gone (a killed run) is removed by the next compile.
+If no C compiler is found, or the cache cannot be written, :func:`compiled` falls back to
+CasADi's SX/MX virtual machine and warns once (per setting and process).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
+import math
 import os
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 import warnings
@@ -33,6 +41,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from . import outputs
 from .errors import UserError
 
 #: Compiler flags: -O1 compiles 1.5-6x faster than -O2 and runs as fast (docs/pitfalls.md).
@@ -114,31 +123,46 @@ def compile_c(
     """Compile ``source`` into the shared library ``library`` atomically; return the seconds taken.
 
     The output goes to a temporary file in the same directory, installed with ``os.replace``.
-    On timeout the compiler's whole process group is killed.
+    On timeout, on an interrupt or any other exception the compiler's whole process group is
+    killed and the temporary file removed; if this process is killed outright, the supervisor
+    kills the group (see the module docstring).
     """
+    if not (timeout > 0 and math.isfinite(timeout)):
+        raise UserError(f"timeout: expected a finite number of seconds > 0, got {timeout}")
     library.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{library.stem}-", suffix=".so.tmp", dir=library.parent)
     os.close(fd)
     cmd = [compiler, *flags, str(source), "-o", tmp, "-lm"]
     start = time.perf_counter()
     try:
-        with subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
-        ) as proc:
-            try:
-                _, err = proc.communicate(timeout=timeout)
-            except subprocess.TimeoutExpired:
-                _kill_group(proc)
-                raise CompilerError(
-                    f"C compiler {compiler} ran past its timeout of {timeout:g} s on {source}; "
-                    "raise the timeout or use fewer quadrature nodes"
-                ) from None
-        if proc.returncode != 0:
-            last = err.decode(errors="replace").strip().splitlines()[-1:] or ["(no output)"]
+        proc = subprocess.Popen(
+            _supervised(cmd),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            start_new_session=True,
+        )
+        try:
+            _, err = proc.communicate(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            _kill_group(proc)
             raise CompilerError(
-                f"C compiler {compiler} failed on {source} (exit {proc.returncode}): {last[0]}"
+                f"C compiler {compiler} ran past its timeout of {timeout:g} s on {source}; "
+                "raise the timeout or use fewer quadrature nodes"
+            ) from None
+        except BaseException:  # KeyboardInterrupt, SystemExit, ...: the compiler goes too
+            _kill_group(proc)
+            raise
+        if proc.returncode != 0:
+            lines = err.decode(errors="replace").strip().splitlines()
+            own = [ln[len(_SUPERVISOR_TAG):].strip() for ln in lines
+                   if ln.startswith(_SUPERVISOR_TAG)]
+            last = [f"cannot run it ({own[-1]})"] if own else lines[-1:]
+            raise CompilerError(
+                f"C compiler {compiler} failed on {source} (exit {proc.returncode}): "
+                f"{(last or ['(no output)'])[0]}"
             )
-        os.chmod(tmp, 0o777 & ~_umask())
+        os.chmod(tmp, 0o777 & ~outputs.umask())
         os.replace(tmp, library)
     finally:
         if os.path.exists(tmp):
@@ -146,19 +170,50 @@ def compile_c(
     return time.perf_counter() - start
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+_SUPERVISOR_TAG = "softpinn-supervisor:"
+
+#: Runs the compiler as its child, in the process group the caller made for it. When the caller
+#: dies (even by SIGKILL) the kernel sends this supervisor SIGTERM (PR_SET_PDEATHSIG), and it kills
+#: the whole group, compiler and cc1 included; SIGTERM from anyone else does the same.
+_SUPERVISOR = r"""
+import os, signal, subprocess, sys
+def stop(*_):
+    os.killpg(0, signal.SIGKILL)
+signal.signal(signal.SIGTERM, stop)
+signal.signal(signal.SIGHUP, stop)
+try:
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+except Exception:
+    pass
+if os.getppid() != int(sys.argv[1]):
+    stop()
+try:
+    sys.exit(subprocess.call(sys.argv[2:]))
+except OSError as e:
+    print("softpinn-supervisor: " + str(e), file=sys.stderr)
+    sys.exit(127)
+"""
+
+
+def _supervised(cmd: list[str]) -> list[str]:
+    """``cmd`` under the supervisor (Linux, where ``prctl`` exists), else unchanged."""
+    if not sys.platform.startswith("linux") or not sys.executable:
+        return cmd
+    return [sys.executable, "-I", "-S", "-c", _SUPERVISOR, str(os.getpid()), *cmd]
 
 
 def _kill_group(proc: subprocess.Popen) -> None:
-    """Kill the compiler's whole process group (its children, such as cc1, too)."""
+    """Kill the compiler's whole process group (its children, such as cc1, too) and reap it."""
     try:
         os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
+    except (ProcessLookupError, PermissionError):
         pass
-    proc.communicate()
+    try:
+        proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:  # pragma: no cover - a child that escaped the group
+        proc.kill()
+        proc.wait()
 
 
 def load_external(
@@ -228,16 +283,35 @@ def compile_functions(
             )
         return Compiled(functions=dict(fns), compiled=False, from_cache=False)
     key = content_hash(fns, cc, flags)
-    root = cache_dir(directory) / key
+    cache = cache_dir(directory)
+    root = cache / key
     stem = f"softpinn_{key}"
     library = root / f"{stem}.so"
     source = root / f"{stem}.c"
     gen_s = comp_s = 0.0
     from_cache = library.is_file()
     if not from_cache:
-        # a private build directory: concurrent processes never read a half-written file
-        root.mkdir(parents=True, exist_ok=True)
-        build = Path(tempfile.mkdtemp(prefix=".build-", dir=root))
+        remove_stale_builds(cache)
+        try:
+            # a private build directory: concurrent processes never read a half-written file
+            root.mkdir(parents=True, exist_ok=True)
+            build = Path(tempfile.mkdtemp(prefix=f".build-{outputs.owner_tag()}-", dir=root))
+        except OSError as exc:
+            message = (
+                f"the compiled-code cache {cache} cannot be written "
+                f"({exc.strerror or type(exc).__name__}; set SOFTPINN_CACHE to a writable folder)"
+            )
+            if not fallback:
+                raise CompilerError(message) from None
+            if f"cache {cache}" not in _warned:
+                _warned.add(f"cache {cache}")
+                warnings.warn(
+                    f"{message}; the equations of motion run in CasADi's virtual machine, "
+                    "which is slower",
+                    CompilerWarning,
+                    stacklevel=2,
+                )
+            return Compiled(functions=dict(fns), compiled=False, from_cache=False)
         try:
             t0 = time.perf_counter()
             tmp_source = write_c(fns, build, stem)
@@ -270,6 +344,29 @@ def compile_functions(
         compiler=cc,
         flags=flags,
     )
+
+
+def remove_stale_builds(cache: Path) -> list[Path]:
+    """Remove the temporary build folders and files a killed compile left in the cache
+    (``.build-<pid>@<host>-*``, ``.<file>.partial-<pid>@<host>-*``): those whose process is gone
+    (this host), else older than a day; untagged ones (older versions) after an hour."""
+    removed = []
+    try:
+        entries = list(cache.glob("*/.*"))
+    except OSError:
+        return removed
+    for entry in entries:
+        name = entry.name
+        if name.startswith(".build-"):
+            tag = name[len(".build-"):].rpartition("-")[0]
+        elif ".partial-" in name:
+            tag = name.partition(".partial-")[2].rpartition("-")[0]
+        else:
+            continue
+        if outputs.is_stale(entry, tag):
+            outputs.remove_path(entry)
+            removed.append(entry)
+    return removed
 
 
 def compiled(fns: Mapping[str, ca.Function], **kwargs) -> dict[str, ca.Function]:
@@ -323,21 +420,49 @@ def generate(
     caller, e.g. derive and function creation, plus C generation and compilation), the compiler
     and flags. Returns the summary. The library is also installed in the cache (``cache``: a
     directory, None for the default, False for no), so that :func:`compile_functions` of the same
-    functions finds it.
+    functions finds it; a cache that cannot be written is skipped with a warning.
+
+    Everything is built in a temporary sibling folder (``.<name>.partial-<pid>@<host>``) and
+    appears at ``out_dir`` only when complete: a new folder is renamed into place; into an
+    existing one (an earlier output) the files are moved one by one, ``summary.json`` last, and
+    files the earlier ``summary.json`` listed that this output has not are removed. Other files
+    in the folder are left alone. An interrupted call leaves ``out_dir`` as it was; a sibling
+    left by a killed run is removed by the next call.
     """
     _check_names(fns)
+    if not (timeout > 0 and math.isfinite(timeout)):
+        raise UserError(f"timeout: expected a finite number of seconds > 0, got {timeout}")
     out = Path(out_dir).absolute()
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"{out}: exists and is not a directory")
+    work = outputs.partial_path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        outputs.remove_stale_partials(out)
+        outputs.remove_path(work)
+        work.mkdir()
+    except OSError as exc:
+        raise outputs.cannot_write("output folder", out, exc) from None
+    try:
+        summary = _generate_into(work, out, fns, compiler, tuple(flags), timeout, timings, extra,
+                                 cache)
+        _install_folder(work, out, summary)
+    finally:
+        outputs.remove_path(work)
+    return summary
+
+
+def _generate_into(work, out, fns, compiler, flags, timeout, timings, extra, cache) -> dict:
     times = dict(timings or {})
     for key, fn in fns.items():
-        fn.save(str(out / f"{key}.casadi"))
+        fn.save(str(work / f"{key}.casadi"))
     t0 = time.perf_counter()
-    source = write_c(fns, out, "softpinn_eom")
+    source = write_c(fns, work, "softpinn_eom")
     times["generate_c"] = time.perf_counter() - t0
     cc = find_compiler(compiler)
     library = None
     if cc is not None:
-        library = out / "softpinn_eom.so"
+        library = work / "softpinn_eom.so"
         times["compile"] = compile_c(source, library, compiler=cc, flags=flags, timeout=timeout)
         if cache is not False:
             _install_in_cache(fns, library, source, cc, flags, cache)
@@ -346,7 +471,7 @@ def generate(
             f"no C compiler found (compiler setting: {compiler or 'default'}); "
             "wrote the C source but no shared library",
             CompilerWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
     summary = {
         "directory": str(out),
@@ -371,29 +496,78 @@ def generate(
     }
     if extra:
         summary.update(extra)
-    tmp = out / ".summary.json.tmp"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out / "summary.json")
+    (work / "summary.json").write_text(outputs.dumps(summary, what="summary.json", indent=1))
     return summary
 
 
-def _install_in_cache(fns, library: Path, source: Path, cc: str, flags, directory) -> None:
-    key = content_hash(fns, cc, tuple(flags))
-    root = cache_dir(None if directory is True else directory) / key
-    target = root / f"softpinn_{key}.so"
-    if target.is_file():
-        return
-    root.mkdir(parents=True, exist_ok=True)
-    for src, dst in ((source, root / f"softpinn_{key}.c"), (library, target)):
-        fd, tmp = tempfile.mkstemp(prefix=f".{dst.stem}-", suffix=".tmp", dir=root)
-        os.close(fd)
+def summary_files(summary: Mapping) -> set[str]:
+    """The file names a derive ``summary.json`` says its folder holds."""
+    names = {"summary.json", str(summary.get("source") or "")}
+    if summary.get("library"):
+        names.add(str(summary["library"]))
+    for info in (summary.get("functions") or {}).values():
+        if isinstance(info, Mapping) and info.get("file"):
+            names.add(str(info["file"]))
+    return {n for n in names if n and "/" not in n and os.sep not in n and n not in (".", "..")}
+
+
+def _install_folder(work: Path, out: Path, summary: Mapping) -> None:
+    """Move the finished folder ``work`` to ``out`` (see :func:`generate`)."""
+    try:
+        if not out.exists():
+            try:
+                os.rename(work, out)  # atomic; onto an empty folder made meanwhile, too
+                return
+            except OSError:
+                if not out.is_dir():
+                    raise
+        earlier: set[str] = set()
         try:
-            shutil.copyfile(src, tmp)
-            os.chmod(tmp, 0o777 & ~_umask() if dst.suffix == ".so" else 0o666 & ~_umask())
-            os.replace(tmp, dst)
-        finally:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
+            earlier = summary_files(json.loads((out / "summary.json").read_text()))
+        except (OSError, ValueError, AttributeError):
+            pass
+        names = sorted(p.name for p in work.iterdir() if p.name != "summary.json")
+        for name in [*names, "summary.json"]:
+            os.replace(work / name, out / name)
+        for name in sorted(earlier - summary_files(summary)):
+            with contextlib.suppress(FileNotFoundError, IsADirectoryError):
+                (out / name).unlink()
+    except OSError as exc:
+        raise outputs.cannot_write("output folder", out, exc) from None
+
+
+def _install_in_cache(fns, library: Path, source: Path, cc: str, flags, directory) -> None:
+    """Copy a compiled library and its source into the cache; a cache that cannot be written
+    is skipped with one warning (the derive output itself is complete)."""
+    key = content_hash(fns, cc, tuple(flags))
+    cache = cache_dir(None if directory is True else directory)
+    root = cache / key
+    target = root / f"softpinn_{key}.so"
+    try:
+        if target.is_file():
+            return
+        remove_stale_builds(cache)
+        root.mkdir(parents=True, exist_ok=True)
+        for src, dst in ((source, root / f"softpinn_{key}.c"), (library, target)):
+            fd, tmp = tempfile.mkstemp(
+                prefix=f".{dst.name}.partial-{outputs.owner_tag()}-", suffix="", dir=root
+            )
+            os.close(fd)
+            try:
+                shutil.copyfile(src, tmp)
+                outputs.install_file(Path(tmp), dst, mode=0o777 if dst.suffix == ".so" else 0o666)
+            finally:
+                if os.path.exists(tmp):
+                    os.unlink(tmp)
+    except OSError as exc:
+        if f"cache {cache}" not in _warned:
+            _warned.add(f"cache {cache}")
+            warnings.warn(
+                f"the compiled-code cache {cache} cannot be written "
+                f"({exc.strerror or type(exc).__name__}); the library was not installed there",
+                CompilerWarning,
+                stacklevel=4,
+            )
 
 
 def _check_names(fns: Mapping[str, ca.Function]) -> None:

@@ -12,13 +12,13 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from . import outputs
 from .datatable import DataError
 from .signals import Signal, signal_from_dict
 
@@ -60,33 +60,55 @@ class DatasetArrays:
 
 def write_dataset(path: str | os.PathLike, data: DatasetArrays, *, force: bool = False) -> Path:
     """Write ``data`` to ``path`` (``.npz``) atomically; refuse to overwrite without ``force``."""
-    path = Path(path)
-    if path.suffix != ".npz":
-        raise DataError(f"--out {path}: a dataset file must end in .npz")
-    if path.exists() and not force:
-        raise DataError(f"--out {path}: file exists (use --force to overwrite)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}-", suffix=".npz", dir=path.parent)
-    os.close(fd)
+    return write_datasets([(path, data)], force=force)[0]
+
+
+def write_datasets(
+    items: Sequence[tuple[str | os.PathLike, DatasetArrays]], *, force: bool = False
+) -> list[Path]:
+    """Write several dataset files (a data set and its resampled siblings) as one step.
+
+    Every file is first written to a temporary sibling (``.<name>.partial-<pid>@<host>``), and
+    only when all are complete are they renamed into place (the first path last), so that an
+    interrupted call leaves none of them and nothing that blocks a rerun; temporary siblings of
+    a killed run are removed. Without ``force`` an existing file is refused before anything is
+    written. The meta must be strict JSON (no NaN or infinity).
+    """
+    paths = [Path(p) for p, _ in items]
+    for path in paths:
+        if path.suffix != ".npz":
+            raise DataError(f"--out {path}: a dataset file must end in .npz")
+        if path.is_dir():
+            raise DataError(f"--out {path}: is a folder, not a dataset file")
+        if path.exists() and not force:
+            raise DataError(f"--out {path}: file exists (use --force to overwrite)")
+    metas = [outputs.dumps(data.meta, what=f"dataset meta of {path}") for path, (_, data)
+             in zip(paths, items, strict=True)]
+    tmps: list[Path] = []
     try:
-        with open(tmp, "wb") as fh:
-            np.savez(
-                fh,
-                **{k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
-                meta=np.array(json.dumps(data.meta)),
-            )
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
+        for path, (_, data), meta in zip(paths, items, metas, strict=True):
+            try:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                outputs.remove_stale_partials(path)
+                tmp = outputs.partial_path(path)
+                tmps.append(tmp)
+                with open(tmp, "wb") as fh:
+                    np.savez(
+                        fh,
+                        **{k: np.ascontiguousarray(v) for k, v in data.arrays().items()},
+                        meta=np.array(meta),
+                    )
+            except OSError as exc:
+                raise outputs.cannot_write("--out", path, exc) from None
+        for tmp, path in reversed(list(zip(tmps, paths, strict=True))):
+            try:
+                outputs.install_file(tmp, path)
+            except OSError as exc:
+                raise outputs.cannot_write("--out", path, exc) from None
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-    return path
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
+        for tmp in tmps:
+            outputs.remove_path(tmp)
+    return paths
 
 
 def read_dataset(path: str | os.PathLike) -> DatasetArrays:
