@@ -115,8 +115,6 @@ def _bounds(values, m: int, flag: str):
 
 
 def cmd_control(args) -> int:
-    import dataclasses
-
     if args.runs:  # the runs are rebuilt from float64 weights (as `softpinn export`)
         import jax
 
@@ -139,9 +137,6 @@ def cmd_control(args) -> int:
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
         max_iter=args.max_iter, codegen=not args.no_codegen,
     )
-    if args.solver == "ipopt":  # IPOPT's jit compiles the whole NLP: slow to build
-        config = dataclasses.replace(config, codegen=False)
-
     bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)
     try:
         result = compare(

@@ -10,16 +10,18 @@ with u_{-1} the input applied at the last step. Two solvers:
 
 * ``"sqp"`` (default): Gauss-Newton sequential quadratic programming on the inputs alone
   (single shooting, condensed). One call of a compiled Function returns the cost, its gradient
-  and the Gauss-Newton Hessian Jᵀ J + wu I + wdu Δᵀ Δ, where J = ∂y/∂u is chained from each
-  stage's exact ∂x⁺/∂x, ∂x⁺/∂u (the RK4 map and its Jacobians, written once as C and called N
-  times); the box-constrained QP is solved by a Cholesky solve when no bound is active, else
+  and the Gauss-Newton Hessian wy Jᵀ J + wu I + wdu Δᵀ Δ, where J = ∂y/∂u is chained from
+  each stage's exact ∂x⁺/∂x, ∂x⁺/∂u (RK4's variational equations from the field's Jacobian:
+  one small C function called four times per sub-step); the box-constrained QP is solved by
+  a Cholesky solve when no bound is active, else
   by a dense QP solver shipped with CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
   backtracking line search on the cost keeps each step a descent. The Functions are compiled
   through the project's code cache (:mod:`softpinn.symbolic.codegen`), so a model compiles
   once per machine; without a C compiler they run in CasADi's virtual machine.
 * ``"ipopt"``: the same problem in multiple shooting with exact Hessians, solved by IPOPT
-  (``casadi.nlpsol``), warm-started from the shifted previous solution; ``codegen=True``
-  compiles its functions with CasADi's ``jit`` (slow to build for large models).
+  (``casadi.nlpsol``) in CasADi's virtual machine, warm-started from the shifted previous
+  solution and multipliers: the reference the SQP is checked against, tens of times slower on
+  task 4 (docs/control.md; ``codegen`` does not apply).
 
 Both warm-start from the previous plan shifted by one step.
 """
@@ -395,12 +397,9 @@ class MPC:
                       "tol": cfg.tol, "warm_start_init_point": "yes",
                       "mu_strategy": "adaptive"},
         }
-        if cfg.codegen:
-            opts.update(jit=True, compiler="shell",
-                        jit_options={"flags": ["-O1"], "verbose": False})
         self.solver = ca.nlpsol("mpc", "ipopt", nlp, opts)
-        self.compiled = cfg.codegen
-        self.compile_info = {"compiled": cfg.codegen, "jit": cfg.codegen}
+        self.compiled = False
+        self.compile_info = {"compiled": False}
         self._lbg = np.zeros(g.shape[0])
         lbx = np.concatenate([np.full(nx * (N + 1), -np.inf), np.tile(self._lbu, N)])
         ubx = np.concatenate([np.full(nx * (N + 1), np.inf), np.tile(self._ubu, N)])
