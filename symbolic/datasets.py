@@ -87,6 +87,19 @@ __all__ = [
     "write_dataset",
 ]
 
+#: seeds are 32-bit unsigned integers, as on the learning side
+MAX_SEED = 2**32 - 1
+
+
+def check_seed(seed) -> int:
+    """``seed`` as an int in [0, 2**32 - 1], else a :class:`DataError` naming the field."""
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not (
+        0 <= seed <= MAX_SEED
+    ):
+        raise DataError(f"seed: expected an integer from 0 to {MAX_SEED} (2**32 - 1), got {seed!r}")
+    return int(seed)
+
+
 LOG = logging.getLogger("softpinn.symbolic")
 
 
@@ -215,9 +228,9 @@ def plan_dataset(
     if duration is None or not duration > 0:
         raise DataError(f"duration: must be positive, got {duration}")
     total = cfg.total_trajectories(integ) if trajectories is None else trajectories
-    if total < 1:
-        raise DataError(f"trajectories: must be at least 1, got {total}")
-    seed = cfg.seed if seed is None else int(seed)
+    if isinstance(total, bool) or not isinstance(total, (int, np.integer)) or total < 1:
+        raise DataError(f"trajectories: must be an integer of at least 1, got {total!r}")
+    seed = cfg.seed if seed is None else check_seed(seed)
     noise = cfg.noise if noise is None else float(noise)
     if not (np.isfinite(noise) and noise >= 0):
         raise DataError(f"noise: must be a non-negative standard deviation, got {noise}")
@@ -231,6 +244,7 @@ def plan_dataset(
         threads=threads,
         max_condition=max_condition,
     )
+    _check_memory(total, spec.n, spec.m, sim, cfg.settle if settle is None else settle)
     kind = signal or cfg.signal
     if kind not in SIGNAL_KINDS:
         raise DataError(f"signal: expected one of {', '.join(SIGNAL_KINDS)}, got {kind!r}")
@@ -263,6 +277,29 @@ def plan_dataset(
         settle=settle,
         data_defaults=defaults,
     )
+
+
+def _check_memory(trajectories: int, n: int, m: int, sim, settle) -> None:
+    """Refuse a data set whose arrays would not fit in this machine's memory (before any work)."""
+    settle = float(settle) if np.isfinite(settle) and settle > 0 else 0.0  # checked later
+    samples = sim.samples + settle * sim.rate
+    per_sample = 8 * (2 * (5 * n + m) + 2)  # simulated arrays, the flat copies, t and traj
+    need = float(trajectories) * samples * per_sample
+    total = _physical_memory()
+    if total and need > total:
+        raise DataError(
+            f"trajectories x duration x rate: {trajectories} x {sim.duration + settle:g} s x "
+            f"{sim.rate:g} Hz would need {need / 1e9:.3g} GB for the arrays, more than this "
+            f"machine's {total / 1e9:.3g} GB of memory; ask for fewer or shorter trajectories "
+            "or a lower rate"
+        )
+
+
+def _physical_memory() -> int | None:
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return None
 
 
 def make_dataset(

@@ -138,6 +138,8 @@ def data_config(spec: ModelSpec, table: Mapping[str, Any] | None = None) -> Data
         if kind == "int":
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 fail(key, f"expected a non-negative integer, got {value!r}")
+            if key == "seed" and value > 2**32 - 1:
+                fail(key, f"expected an integer from 0 to 2**32 - 1, got {value!r}")
             out[key] = value
         elif kind == "float":
             if (

@@ -26,12 +26,26 @@ import casadi as ca
 import numpy as np
 
 from . import kinematics as kin
+from .errors import UserError
 from .smooth import Jet
 from .spec import ModelSpec
 
 #: Gauss-Legendre order for the zeta integrals: M, G and C qd within 2e-11 relative of order 40
 #: for |theta| <= 2 pi (order 9: 6e-10; ``tests/test_energies.py`` checks 1e-10).
 DEFAULT_ORDER = 10
+#: the highest order accepted: order 40 is already exact to double precision for |theta| <= 2 pi
+MAX_ORDER = 100
+
+
+def check_order(order) -> int:
+    """``order`` as an int, or a :class:`UserError` naming the field."""
+    if (isinstance(order, bool) or not isinstance(order, (int, np.integer))
+            or not 1 <= order <= MAX_ORDER):
+        raise UserError(
+            f"order: expected an integer from 1 to {MAX_ORDER} (Gauss-Legendre nodes per "
+            f"segment; default {DEFAULT_ORDER}), got {order!r}"
+        )
+    return int(order)
 
 
 def gauss_legendre(order: int) -> tuple[np.ndarray, np.ndarray]:

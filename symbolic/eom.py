@@ -22,6 +22,7 @@ from .energies import (
     PlateTerms,
     SegmentMoments,
     Terms,
+    check_order,
     gauss_legendre,
 )
 from .spec import ModelSpec
@@ -48,7 +49,7 @@ class SymbolicModel:
         self.spec = spec
         self.hoist = hoist
         self.n, self.m = spec.n, spec.m
-        self.order = order
+        self.order = check_order(order)
         self.q = ca.SX.sym("q", self.n)
         self.qd = ca.SX.sym("qd", self.n)
         self.zeta = ca.SX.sym("zeta")

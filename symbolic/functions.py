@@ -24,7 +24,7 @@ from pathlib import Path
 import casadi as ca
 
 from . import kinematics as kin
-from .energies import DEFAULT_ORDER
+from .energies import DEFAULT_ORDER, check_order
 from .eom import Part, SymbolicModel, derive
 from .spec import ModelSpec, load_spec
 
@@ -363,7 +363,7 @@ def functions(model: str | Path | ModelSpec, order: int | None = None) -> dict[s
     in :data:`SIGNATURES`; cached per spec value. ``order`` is the Gauss-Legendre order of the
     zeta integrals (default :data:`symbolic.energies.DEFAULT_ORDER`)."""
     spec = load_spec(model)
-    return dict(_functions(spec, DEFAULT_ORDER if order is None else int(order)))
+    return dict(_functions(spec, DEFAULT_ORDER if order is None else check_order(order)))
 
 
 def function_sizes(fns: dict[str, ca.Function]) -> dict[str, int]:

@@ -13,6 +13,7 @@ saves) and the fallback when no C compiler is found (with one warning).
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import casadi as ca
@@ -39,6 +40,8 @@ class TrueModel:
         """``compiled``: None runs batches of :data:`COMPILE_FROM` states or more as compiled
         C and everything else in CasADi's interpreter; True compiles every batched call; False
         never compiles."""
+        if compiled not in (None, True, False):
+            raise UserError(f"compiled: expected None, True or False, got {compiled!r}")
         self.spec: ModelSpec = load_spec(model)
         self.n: int = self.spec.n
         self.m: int = self.spec.m
@@ -60,16 +63,28 @@ class TrueModel:
     # ------------------------------------------------------------------ evaluation core
 
     def _arg(self, name: str, value, size: int) -> tuple[np.ndarray, bool]:
-        a = np.asarray(value, dtype=float)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("error", np.exceptions.ComplexWarning)
+                a = np.asarray(value, dtype=float)
+        except (TypeError, ValueError, np.exceptions.ComplexWarning):
+            raise UserError(f"{name}: expected real numbers, got {_short(value)}") from None
         if a.ndim == 0 or a.ndim > 2:
             raise UserError(f"{name}: expected shape ({size},) or (N, {size}), got {a.shape}")
         if a.shape[-1] != size:
             raise UserError(f"{name}: expected length {size} for model "
                             f"'{self.spec.name}', got {a.shape[-1]}")
+        if not np.all(np.isfinite(a)):
+            where = np.argwhere(~np.isfinite(a))[0]
+            raise UserError(f"{name}: values must be finite, got {a[tuple(where)]} at index "
+                            f"{tuple(int(i) for i in where) if a.ndim == 2 else int(where[0])}")
         return a, a.ndim == 2
 
     def call(self, key: str, **inputs) -> list[np.ndarray]:
         """Evaluate Function ``key`` at named numpy inputs; returns its outputs as arrays."""
+        if key not in self.functions:
+            raise UserError(f"{key}: not a function of the model (one of "
+                            f"{', '.join(sorted(self.functions))})")
         f = self.functions[key]
         sizes = {f.name_in(i): f.size1_in(i) for i in range(f.n_in())}
         if set(inputs) != set(sizes):
@@ -85,6 +100,9 @@ class TrueModel:
         if batch is None:
             res = f.call({k: ca.DM(v) for k, v in arrays.items()})
             return [self._single(f, j, res[f.name_out(j)]) for j in range(f.n_out())]
+        if batch == 0:
+            return [self._batched(f, j, np.zeros((f.size1_out(j), 0)), 0)
+                    for j in range(f.n_out())]
         args = {}
         for name, a in arrays.items():
             if a.ndim == 1:
@@ -174,12 +192,17 @@ class TrueModel:
 
     def ode(self, x, u=None):
         """xdot = [qd; qdd] for x = [q; qd]."""
-        return self.call("ode", x=x, u=self._u(u, np.asarray(x)[..., : self.n]))[0]
+        return self.call("ode", x=x, u=self._u(u))[0]
 
-    def _u(self, u, q):
+    def _u(self, u, q=None):
         if u is None:
             return np.zeros(self.m)
         return u
 
     def __repr__(self) -> str:
         return f"TrueModel({self.spec.name!r}, n={self.n}, m={self.m})"
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

@@ -41,6 +41,9 @@ from .errors import UserError
 from .signals import Signal
 
 INTEGRATORS = ("cvodes", "rk4")
+#: the most output samples per trajectory and RK4 steps per output interval
+MAX_SAMPLES = 1e9
+MAX_SUBSTEPS = 1_000_000
 
 
 class SimulationError(UserError):
@@ -83,6 +86,11 @@ class SimulationConfig:
             raise SimulationError(f"duration: must be positive, got {self.duration}")
         if not (np.isfinite(self.rate) and self.rate > 0):
             raise SimulationError(f"rate: must be a positive number of Hz, got {self.rate}")
+        if not self.duration * self.rate <= MAX_SAMPLES:
+            raise SimulationError(
+                f"duration * rate: {self.duration:g} s at {self.rate:g} Hz gives more than "
+                f"{MAX_SAMPLES:.0e} samples per trajectory"
+            )
         if self.samples < 2:
             raise SimulationError(
                 f"duration * rate: must give at least 2 samples, got "
@@ -92,6 +100,11 @@ class SimulationConfig:
             if not (np.isfinite(self.dt) and self.dt > 0):
                 raise SimulationError(f"dt: must be positive, got {self.dt}")
             ratio = 1.0 / (self.rate * self.dt)
+            if not ratio <= MAX_SUBSTEPS:
+                raise SimulationError(
+                    f"dt: {self.dt:g} s makes {ratio:.3g} RK4 steps per output interval "
+                    f"(1/rate = {1 / self.rate:g} s), more than {MAX_SUBSTEPS:,}; use a larger dt"
+                )
             if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6 * ratio:
                 raise SimulationError(
                     f"dt: the output interval 1/rate = {1 / self.rate:g} s must be a whole "

@@ -34,6 +34,15 @@ KINDS = ("spatial-pcc", "planar-pcc", "mass-spring-damper", "double-pendulum")
 PARAMETERIZATIONS = ("delta", "phi-theta")
 NAMED_ACTUATIONS = ("generalized", "tip-wrench", "tendon", "none")
 
+#: The most generalized coordinates a spec may have. Deriving the functions and their C grows
+#: about as n^2.5 in time and memory, and compiling it faster still (measured on one core, spatial
+#: PCC, derive + C generation / gcc -O1): 4 segments (n = 12) 1.4 s, 72 MB / 5.5 s, 0.3 GB;
+#: 8 segments (n = 24) 9 s, 150 MB, 9 MB of C / 31 s, 0.8 GB; 12 segments (n = 36) 24 s,
+#: 320 MB, 27 MB of C, minutes to compile; planar, 24 segments (n = 48): 60 s, 1.1 GB, 79 MB of
+#: C; a chain of 100 masses: 47 s, 1.2 GB, 63 MB of C. 40 spatial segments ran for minutes past
+#: 3 GB. n = 24 keeps a derive under a minute and a compile within the default timeout.
+MAX_COORDINATES = 24
+
 
 class SpecError(UserError):
     """A model spec that cannot be used; the message names the file and the field."""
@@ -180,15 +189,41 @@ def load_spec(model: str | Path | ModelSpec) -> ModelSpec:
     presets = list_presets()
     if text in presets:
         path = preset_path(text)
-        return spec_from_toml(path.read_text(), source=f"preset:{text}")
+        return spec_from_toml(path.read_text(encoding="utf-8"), source=f"preset:{text}")
     path = Path(text)
     if path.suffix != ".toml" and not path.exists():
         raise SpecError(
             f"unknown model {text!r}: not a preset ({', '.join(presets)}) and no such file"
         )
+    if path.is_dir():
+        raise SpecError(f"{text}: is a folder, not a spec file")
     if not path.is_file():
         raise SpecError(f"{text}: no such spec file")
-    return spec_from_toml(path.read_text(), source=str(path))
+    return spec_from_toml(_read_text(path), source=str(path))
+
+
+#: a spec file larger than this is refused before it is read (specs are a few kB)
+MAX_SPEC_BYTES = 1 << 20
+
+
+def _read_text(path: Path) -> str:
+    """The text of a spec file; one-line errors for an unreadable, huge or non-UTF-8 file."""
+    try:
+        size = path.stat().st_size
+        if size > MAX_SPEC_BYTES:
+            raise SpecError(f"{path}: {size / 1e6:.1f} MB is too large for a spec file "
+                            f"(at most {MAX_SPEC_BYTES // 1024} kB)")
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read ({exc.strerror or type(exc).__name__})") from None
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise SpecError(
+            f"{path}: not a UTF-8 text file (byte 0x{raw[exc.start]:02x} on line {line}); "
+            "save it as UTF-8"
+        ) from None
 
 
 def spec_from_toml(text: str, *, source: str = "<string>") -> ModelSpec:
@@ -254,6 +289,15 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                          actuation="none", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"), default="none")
     spec = dataclasses.replace(spec, actuation=actuation)
+    if spec.n > MAX_COORDINATES:
+        field_name = "segment" if kind in ("spatial-pcc", "planar-pcc") else "masses"
+        count = (f"{len(spec.segments)} segments" if spec.segments
+                 else f"{len(spec.masses)} masses")
+        per = {"spatial-pcc": 3, "planar-pcc": 2}.get(kind, 1)
+        v.fail(field_name, f"{count} give {spec.n} coordinates, more than the {MAX_COORDINATES} "
+               f"supported (at most {MAX_COORDINATES // per} here): deriving and compiling the "
+               "equations grow about as n^2.5 in time and memory (8 spatial segments: 9 s and "
+               "0.15 GB to derive, 31 s and 0.8 GB to compile; 40 ran for minutes past 3 GB)")
     try:
         parse_recipe(training, spec.n)
     except RecipeError as e:

@@ -275,14 +275,26 @@ def test_simulate_singularity_is_one_line(capsys, tmp_path):
     assert not (tmp_path / "pt.npz").exists()
 
 
-def test_derive_without_compiler_warns_in_one_line(capsys, tmp_path):
-    status, out, err = run(
-        capsys, "derive", "task1", "--out", tmp_path / "d", "--compiler", tmp_path / "no-cc"
-    )
+def test_derive_without_compiler_warns_in_one_line(capsys, tmp_path, monkeypatch):
+    """No default compiler ($CC, gcc, cc): C source, no library, one warning line."""
+    monkeypatch.setenv("CC", str(tmp_path / "no-cc"))
+    monkeypatch.setenv("PATH", str(tmp_path / "empty-bin"))
+    status, out, err = run(capsys, "derive", "task1", "--out", tmp_path / "d")
     assert status == 0
     assert err.strip().splitlines() == [
-        f"softpinn: warning: no C compiler found (compiler setting: {tmp_path / 'no-cc'}); "
+        "softpinn: warning: no C compiler found (compiler setting: default); "
         "wrote the C source but no shared library"
     ]
     assert (tmp_path / "d" / "softpinn_eom.c").is_file()
     assert not (tmp_path / "d" / "softpinn_eom.so").exists()
+
+
+def test_derive_with_a_named_compiler_that_does_not_exist_is_refused(capsys, tmp_path):
+    """--compiler names a compiler: a missing one is a mistake, not a reason to fall back."""
+    status, _, err = run(
+        capsys, "derive", "task1", "--out", tmp_path / "d", "--compiler", tmp_path / "no-cc"
+    )
+    assert status == 2
+    assert err.count("\n") == 1
+    assert err.startswith(f"softpinn: error: --compiler {tmp_path / 'no-cc'}: no such compiler")
+    assert not (tmp_path / "d").exists()

@@ -13,7 +13,6 @@ The commands only map flags onto :mod:`symbolic` functions:
 from __future__ import annotations
 
 import contextlib
-import json
 import sys
 import time
 import warnings
@@ -22,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from softpinn.symbolic.errors import UserError
+from softpinn.symbolic.outputs import dumps
 
 SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
 
@@ -169,7 +169,7 @@ def cmd_models(args) -> int:
             }
         )
     if args.json:
-        print(json.dumps({"models": rows}))
+        print(dumps({"models": rows}, what="models"))
         return 0
     print(f"{'name':<8} {'kind':<20} {'n':>2} {'m':>2}  description")
     for r in rows:
@@ -209,9 +209,16 @@ def cmd_matrices(args) -> int:
     }
     if qd is not None:
         out.update({"qd": qd, "u": u, "C": tm.C(q, qd), "qdd": tm.qdd(q, qd, u)})
+    for key, value in out.items():
+        if not isinstance(value, str) and not np.all(np.isfinite(value)):
+            state = ", ".join(f"{v:.6g}" for v in q)
+            raise UserError(
+                f"model '{spec.name}' at q = [{state}]: {key} is not finite; the model is "
+                'singular there (phi-theta at theta = 0?): use parameterization = "delta"'
+            )
     plain = {k: (np.asarray(v).tolist() if not isinstance(v, str) else v) for k, v in out.items()}
     if args.json:
-        print(json.dumps(plain))
+        print(dumps(plain, what="matrices"))
         return 0
     with np.printoptions(precision=6, suppress=False, linewidth=100):
         for key, value in out.items():
@@ -227,12 +234,18 @@ def cmd_matrices(args) -> int:
 
 
 def cmd_derive(args) -> int:
-    from softpinn.symbolic.codegen import generate
+    from softpinn.symbolic.codegen import find_compiler, generate
     from softpinn.symbolic.eom import derive
     from softpinn.symbolic.functions import functions_of
     from softpinn.symbolic.spec import load_spec
 
+    _positive("timeout", args.timeout)
     spec = load_spec(args.model)
+    if args.compiler is not None and find_compiler(args.compiler) is None:
+        raise UserError(
+            f"--compiler {args.compiler}: no such compiler (not a file and not on PATH); leave "
+            "--compiler out to use $CC, gcc or cc (or CasADi's virtual machine without one)"
+        )
     out = Path(args.out) if args.out else Path(f"{spec.name}-eom")
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
@@ -245,8 +258,7 @@ def cmd_derive(args) -> int:
         raise UserError(
             f"--out {out}: directory is not empty and holds no earlier derive output (use --force)"
         )
-    if args.timeout <= 0:
-        raise UserError(f"--timeout: must be positive, got {args.timeout}")
+    _check_writable("--out", out)
     t0 = time.perf_counter()
     model = derive(spec)
     t_derive = time.perf_counter() - t0
@@ -264,7 +276,7 @@ def cmd_derive(args) -> int:
             extra={"model": spec.name, "spec": spec.to_dict(), "n": spec.n, "m": spec.m},
         )
     if args.json:
-        print(json.dumps(summary))
+        print(dumps(summary, what="summary"))
         return 0
     tm = summary["timings_s"]
     print(f"{spec.name}: wrote {summary['directory']}")
@@ -285,12 +297,13 @@ def cmd_derive(args) -> int:
 
 
 def cmd_simulate(args) -> int:
+    from softpinn.symbolic.datafile import write_datasets
     from softpinn.symbolic.datasets import (
+        check_seed,
         data_config,
         make_dataset,
         plan_dataset,
         resample,
-        write_dataset,
     )
     from softpinn.symbolic.spec import load_spec
 
@@ -299,15 +312,9 @@ def cmd_simulate(args) -> int:
     out = Path(args.out)
     if out.suffix != ".npz":
         raise UserError(f"--out {out}: a dataset file must end in .npz")
-    for flag, value in (
-        ("--duration", args.duration),
-        ("--rate", args.rate),
-        ("--dt", args.dt),
-        ("--rtol", args.rtol),
-        ("--atol", args.atol),
-    ):
-        if value is not None and not (np.isfinite(value) and value > 0):
-            raise UserError(f"{flag}: must be positive, got {value}")
+    for field in ("duration", "rate", "dt", "rtol", "atol"):
+        if getattr(args, field) is not None:
+            _positive(field, getattr(args, field))
     if args.trajectories is not None and args.trajectories < 1:
         raise UserError(f"--trajectories: must be at least 1, got {args.trajectories}")
     if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
@@ -316,6 +323,8 @@ def cmd_simulate(args) -> int:
         raise UserError(f"--settle: must be a non-negative number of seconds, got {args.settle}")
     if args.threads < 1:
         raise UserError(f"--threads: must be at least 1, got {args.threads}")
+    if args.seed is not None:
+        check_seed(args.seed)
     integrator = args.integrator or ("rk4" if args.dt is not None else cfg.integrator)
     if args.dt is not None and integrator != "rk4":
         raise UserError("--dt: is the fixed step of --integrator rk4; cvodes takes --rate")
@@ -324,10 +333,12 @@ def cmd_simulate(args) -> int:
     if integrator == "cvodes" and args.rate is None and len(cfg.rates) > 1:
         extra_rates = sorted(r for r in cfg.rates if r != cfg.rate)
     targets = [out] + [_sibling(out, r) for r in extra_rates]
-    if not args.force:
-        for path in targets:
-            if path.exists():
-                raise UserError(f"--out {path}: file exists (use --force to overwrite)")
+    for path in targets:
+        if path.is_dir():
+            raise UserError(f"--out {path}: is a folder, not a dataset file")
+        if path.exists() and not args.force:
+            raise UserError(f"--out {path}: file exists (use --force to overwrite)")
+    _check_writable("--out", out)
 
     plan = plan_dataset(
         spec,
@@ -367,15 +378,15 @@ def cmd_simulate(args) -> int:
         if bar is not None:
             bar.leave = not failed  # an error leaves one clean line on stderr
             bar.close()
-    write_dataset(out, data, force=args.force)
+    subs = [resample(data, rate) for rate in extra_rates]
+    # every file complete before any appears: an interrupt leaves none, so a rerun is not refused
+    write_datasets([(out, data), *zip(targets[1:], subs, strict=True)], force=args.force)
     k, per = data.meta["trajectories"], data.meta["samples_per_trajectory"]
     print(
         f"{spec.name}: wrote {out} ({k} trajectories x {per} samples at "
         f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}) in {seconds:.2f} s"
     )
-    for rate, path in zip(extra_rates, targets[1:], strict=True):
-        sub = resample(data, rate)
-        write_dataset(path, sub, force=args.force)
+    for rate, path, sub in zip(extra_rates, targets[1:], subs, strict=True):
         print(
             f"{spec.name}: wrote {path} (resampled at {rate:g} Hz, "
             f"{sub.meta['samples_per_trajectory']} samples per trajectory)"
@@ -398,6 +409,32 @@ def _warnings_as_lines():
                     print(f"softpinn: warning: {w.message}", file=sys.stderr)
                 else:
                     warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
+def _positive(field: str, value: float) -> None:
+    """A finite number > 0 (NaN fails too); the message names the field, shown as its flag."""
+    if not (value > 0 and np.isfinite(value)):
+        what = "positive" if value == value and value < np.inf else "a finite number > 0"
+        raise UserError(f"{field}: must be {what}, got {value}")
+
+
+def _check_writable(flag: str, path: Path) -> None:
+    """Fail before the work when ``path`` cannot be created: a probe file must be creatable in
+    its nearest existing ancestor (which must be a folder)."""
+    import tempfile
+
+    parent = path.absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise UserError(f"{flag} {path}: cannot write there ({parent} is not a folder)")
+    try:
+        with tempfile.NamedTemporaryFile(prefix=".softpinn-probe-", dir=parent):
+            pass
+    except OSError as exc:
+        raise UserError(
+            f"{flag} {path}: cannot write there ({parent}: {exc.strerror or type(exc).__name__})"
+        ) from None
 
 
 def _sibling(path: Path, rate: float) -> Path:
