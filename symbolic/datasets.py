@@ -310,6 +310,8 @@ def make_dataset(
     compile: bool = True,
     cache: str | os.PathLike | None = None,
     progress: Callable[[int], None] | None = None,
+    simulator: Callable | None = None,
+    simulator_meta: Mapping | None = None,
     **options,
 ) -> DatasetArrays:
     """Simulate a model's data set (Section III-B) and return its arrays and meta.
@@ -319,6 +321,13 @@ def make_dataset(
     :func:`symbolic.functions.functions`, compiled to C with :func:`symbolic.codegen.compiled`
     when ``compile``; ``cache`` is the compiled-code cache directory). ``progress`` is called
     with the number of trajectories finished.
+
+    ``simulator(x0, signals, config, progress=...)`` replaces CasADi's integration (it returns
+    what :func:`symbolic.simulate.simulate` does: ``t``, ``x``, ``q``, ``qd``, ``qdd``, ``p``,
+    ``u``, ``info``), e.g. the JAX RK4 of :func:`softpinn.bridge.exact.make_dataset`; its
+    ``simulator_meta`` is merged into ``meta``. Everything else (the plan, the draws of initial
+    states and signals, the settle time, the noise, the meta) is this function's, whichever
+    integrates.
     """
     if plan is None:
         plan = plan_dataset(model, **options)
@@ -329,7 +338,10 @@ def make_dataset(
     integ = sim.integrator
     timings: dict[str, float] = {}
     is_compiled = from_cache = None  # unknown when the caller passes the functions
-    if fns is None:
+    if simulator is not None:
+        if fns is not None:
+            raise TypeError("make_dataset: give fns or a simulator, not both")
+    elif fns is None:
         t0 = time.perf_counter()
         from .functions import functions
 
@@ -354,7 +366,10 @@ def make_dataset(
     # before recording: the release transient (e.g. Task 5's second segment, eigenvalue about
     # -288 1/s) would otherwise hold nearly all of the one-step loss in a few samples
     run = replace(sim, duration=sim.duration + plan.settle) if plan.settle else sim
-    res = simulate(fns, x0, sigs, run, progress=progress)
+    if simulator is None:
+        res = simulate(fns, x0, sigs, run, progress=progress)
+    else:
+        res = simulator(x0, sigs, run, progress=progress)
     timings["simulate"] = time.perf_counter() - t0
     timings.update({k: v for k, v in res.info.items() if k.endswith("_seconds")})
 
@@ -411,6 +426,7 @@ def make_dataset(
         "numpy_version": np.__version__,
         "timings_s": timings,
     }
+    meta.update(simulator_meta or {})
     return DatasetArrays(meta=meta, **arrays)
 
 
