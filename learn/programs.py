@@ -183,6 +183,9 @@ def resolve_devices(devices: int) -> int:
     line when more are asked for than there are."""
     have = jax.device_count()
     use = have if devices == 0 else devices
+    if jax.process_count() > 1 and use != have:
+        raise UserError(f"devices: training on {jax.process_count()} processes spans every "
+                        f"process's devices ({have}); give --devices all")
     if use > have:
         hint = (" (on a CPU, XLA_FLAGS=--xla_force_host_platform_device_count=N before Python "
                 "starts makes N devices)" if jax.default_backend() == "cpu" else "")
@@ -201,6 +204,26 @@ def batch_sharding(devices: int):
 
     mesh = Mesh(np.asarray(jax.devices()[:devices]), ("data",))
     return NamedSharding(mesh, PartitionSpec("data"))
+
+
+def replicated(tree, devices: int):
+    """``tree`` as global arrays replicated over the first ``devices`` devices of every process
+    (each process holds the same values: the same data file and seed)."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    mesh = Mesh(np.asarray(jax.devices()[:devices]), ("data",))
+    rep = NamedSharding(mesh, PartitionSpec())
+
+    def one(a):
+        host = np.asarray(a)
+        return jax.make_array_from_callback(host.shape, rep, lambda idx: host[idx])
+
+    return jax.tree.map(one, tree)
+
+
+def local_copy(tree):
+    """This process's copy of replicated global arrays, as ordinary local arrays."""
+    return jax.tree.map(lambda a: jnp.asarray(a.addressable_data(0)), tree)
 
 
 class Programs:
@@ -295,12 +318,22 @@ class Programs:
         new = object.__new__(Programs)
         new.__dict__.update(self.__dict__)
         new.config, new.train, new.test = config, train, test
+        new._global_train = None
         new._set_eval_data(train, test)
         return new
 
     def epoch_fn(self, params, opt_state, keys, epoch, active):
         lr = jnp.asarray(self.config.lr, jax.tree.leaves(self.train)[0].dtype)
-        return self._epoch_fn(params, opt_state, keys, epoch, active, lr, self.train)
+        args = (params, opt_state, keys, epoch, active, lr)
+        if self.devices > 1 and jax.process_count() > 1:
+            # several processes (hosts): the jitted epoch spans every process's devices and
+            # takes global arrays, replicated; its results come back as this process's copy,
+            # so that the rest of the engine (checkpoints, losses) works on local arrays
+            if getattr(self, "_global_train", None) is None:
+                self._global_train = replicated(self.train, self.devices)
+            out = self._epoch_fn(*replicated(args, self.devices), self._global_train)
+            return local_copy(out)
+        return self._epoch_fn(*args, self.train)
 
     def _set_eval_data(self, train, test):
         self._train_chunks = _chunked(train, self.eval_size)

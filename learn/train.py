@@ -23,6 +23,7 @@ from pathlib import Path
 import jax.numpy as jnp
 
 from . import checkpoint as ckpt
+from . import distributed
 from .advice import setting_warnings, warn_setting
 from .config import (
     ENSEMBLE_MODES,
@@ -167,6 +168,7 @@ def train(
     resume: bool = False,
     programs: ProgramCache | None = None,
     warn: Callable[[str], None] | None = None,
+    _shadow: bool = False,
 ) -> TrainResult:
     """Train ``config.seeds`` models on ``data`` and write the run directory ``out_dir``.
 
@@ -185,6 +187,14 @@ def train(
     :mod:`learn.advice`; default: a warning of the ``softpinn.learn`` logger).
     """
     programs = PROGRAMS if programs is None else programs
+    # several processes: process 0 writes the run directory, the others a private copy
+    if not _shadow and not distributed.is_writer():
+        shadow = distributed.shadow_dir(out_dir, resume=resume)
+        try:
+            return train(data, config, shadow, progress=progress, resume=resume,
+                         programs=programs, warn=lambda message: None, _shadow=True)
+        finally:
+            distributed.drop_shadow(shadow)
     run_dir = ckpt.prepare_run_dir(out_dir, force=force, resume=resume)
     if resume:
         stored = ckpt.read_json(run_dir / "config.json")

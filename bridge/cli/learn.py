@@ -112,6 +112,16 @@ def register(subparsers) -> None:
     net.add_argument("--state", choices=("velocity", "momentum"), default=None,
                      help="state of a black-box model (default velocity)")
     net.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
+    hosts = p.add_argument_group("several processes (hosts)")
+    hosts.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                       help="address of process 0 when training on several processes (with "
+                       "--num-processes and --process-id; then --devices all)")
+    hosts.add_argument("--num-processes", type=int, default=None, metavar="P",
+                       help="how many processes train together")
+    hosts.add_argument("--process-id", type=int, default=None, metavar="I",
+                       help="this process's index, 0 .. P-1 (process 0 writes the run)")
+    hosts.add_argument("--cluster", action="store_true",
+                       help="take the processes from the cluster's environment (SLURM, Open MPI)")
     from softpinn.learn.config import RESUMABLE
 
     run = p.add_argument_group("run directory")
@@ -337,6 +347,11 @@ class _Bar:
 
 def cmd_train(args) -> int:
     _enable_x64()
+    from softpinn.learn.distributed import initialize, is_writer
+
+    initialize(args.coordinator, args.num_processes, args.process_id, cluster=args.cluster)
+    if not is_writer():
+        args.quiet = True  # one progress bar: process 0's
     from softpinn.learn.checkpoint import read_json
     from softpinn.learn.data import load_dataset
     from softpinn.learn.errors import UserError
@@ -381,6 +396,8 @@ def cmd_train(args) -> int:
         )
     finally:
         bar.close()
+    if not is_writer():
+        return 0  # process 0 reports
     m = result.metrics
     if args.json:
         print(json.dumps({"run": str(result.run_dir), **_nulls(m)}, allow_nan=False))
@@ -409,7 +426,8 @@ def _warn(message: str) -> None:
 
 
 #: train flags that are not settings of the run
-_RUN_FLAGS = frozenset({"out", "resume", "force", "quiet", "json", "given"})
+_RUN_FLAGS = frozenset({"out", "resume", "force", "quiet", "json", "given", "coordinator",
+                        "num_processes", "process_id", "cluster"})
 _MODEL_FLAGS = frozenset({"model", "width", "depth", "activation", "damping_form", "input_form",
                           "eps", "mass_init", "state", "float32", *NETS})
 
