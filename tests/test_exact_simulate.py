@@ -78,3 +78,19 @@ def test_errors_name_the_problem():
         simulate(em, x0, sigs[:1], cfg)
     with pytest.raises(SingularityError, match="trajectory 1: the state is not finite"):
         simulate(em, x0 * [[1.0], [1e308]], sigs, cfg)
+
+
+def test_simulate_cli_integrator_jax_rk4(tmp_path, capsys):
+    """`softpinn simulate --integrator jax-rk4` writes the CasADi rk4 file's data (to rounding)."""
+    from softpinn.bridge.cli import main
+    from softpinn.symbolic.datafile import read_dataset
+
+    args = ["simulate", "task1", "--trajectories", "2", "--duration", "0.5", "--rate", "50",
+            "--quiet", "--no-compile"]
+    assert main([*args, "--integrator", "jax-rk4", "--out", str(tmp_path / "j.npz")]) == 0
+    assert "rk4 in JAX" in capsys.readouterr().out
+    assert main([*args, "--integrator", "rk4", "--out", str(tmp_path / "c.npz")]) == 0
+    j, c = read_dataset(tmp_path / "j.npz"), read_dataset(tmp_path / "c.npz")
+    assert j.meta["compiled"] == "jax" and "JAX" in j.meta["simulation"]["method"]
+    for key in ("q", "qd", "u"):
+        np.testing.assert_allclose(getattr(j, key), getattr(c, key), rtol=0, atol=1e-12)
