@@ -89,8 +89,9 @@ def register(subparsers) -> None:
                    help="sqp: Gauss-Newton SQP from generated C; ipopt: IPOPT, exact Hessian")
     m.add_argument("--qpsol", choices=QP_SOLVERS, default=d.qpsol,
                    help="the SQP's QP solver (used when an input bound is active)")
-    m.add_argument("--max-iter", dest="max_iter", type=int, default=d.max_iter, metavar="N",
-                   help="solver iterations per control step")
+    m.add_argument("--max-iter", dest="max_iter", type=int, default=None, metavar="N",
+                   help="solver iterations per control step (default: 1 for sqp, the real-time "
+                        "iteration; 50 for ipopt)")
     m.add_argument("--no-codegen", action="store_true",
                    help="run the solver's functions in CasADi's virtual machine, no C compiler")
     m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")

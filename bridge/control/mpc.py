@@ -59,8 +59,11 @@ class MPCConfig:
 
     Weights: ``weight_y`` on the squared output error (per unit of y², e.g. m²),
     ``weight_u`` on (u - u_ref)², ``weight_du`` on the squared input change per step.
-    ``max_iter``: SQP iterations (or IPOPT's) per control step; ``tol``: the SQP stops when
-    the largest input change of a step is below it (IPOPT: its tolerance).
+    ``max_iter``: iterations per control step, by default 1 for the SQP (the real-time
+    iteration: one Gauss-Newton step from the shifted previous plan, as real-time NMPC does;
+    more converge each solve, at a multiple of the time) and 50 for IPOPT; ``tol``: the SQP
+    stops earlier when the largest input change of an iteration is below it (IPOPT: its
+    tolerance).
     ``substeps`` is the least number of RK4 sub-steps per control step; with ``stiffness``
     > 0 and an operating point given to :class:`MPC`, a model whose linearisation there has
     eigenvalues λ gets more, until h max|λ| <= ``stiffness`` for the sub-step h (RK4 is stable
@@ -79,11 +82,13 @@ class MPCConfig:
     u_max: tuple[float, ...] | None = None
     solver: str = "sqp"
     qpsol: str = "daqp"
-    max_iter: int = 10
+    max_iter: int | None = None
     tol: float = 1e-6
     codegen: bool = True
 
     def __post_init__(self):
+        if self.max_iter is None:
+            object.__setattr__(self, "max_iter", 1 if self.solver == "sqp" else 50)
         for name in ("horizon", "substeps", "max_iter"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:

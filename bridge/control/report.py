@@ -30,9 +30,11 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         f"The plant is the true model ({result['plant']['integrator']}, rtol "
         f"{result['plant']['rtol']:g}), fed back {result['plant']['feedback']}; each controller "
         f"predicts with its own model. MPC at {result['rate']:g} Hz (dt {cfg['dt']:g} s), horizon "
-        f"{cfg['horizon']} ({cfg['horizon'] * cfg['dt']:g} s), RK4 with {cfg['substeps']} "
-        f"sub-step(s) per step, solver {cfg['solver']}"
-        + (f" (Gauss-Newton SQP, QP {cfg['qpsol']}, at most {cfg['max_iter']} iterations)"
+        f"{cfg['horizon']} ({cfg['horizon'] * cfg['dt']:g} s), RK4 with at least "
+        f"{cfg['substeps']} sub-step(s) per step, solver {cfg['solver']}"
+        + (f" (Gauss-Newton SQP, QP {cfg['qpsol']}, "
+           + ("one iteration per step: the real-time iteration)" if cfg["max_iter"] == 1
+              else f"at most {cfg['max_iter']} iterations)")
            if cfg["solver"] == "sqp" else f" (at most {cfg['max_iter']} iterations)")
         + f"; weights: output {cfg['weight_y']:g}, input {cfg['weight_u']:g}, input change "
         f"{cfg['weight_du']:g}; input bounds: {bounds}.",
@@ -43,8 +45,8 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         "",
         "## Controllers",
         "",
-        "| controller | source | compiled C | build [s] |",
-        "|---|---|---|---|",
+        "| controller | source | RK4 sub-steps | compiled C | build [s] |",
+        "|---|---|---|---|---|",
     ]
     for name, c in result["controllers"].items():
         src = c.get("run") or c.get("source")
@@ -52,8 +54,9 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
             src = "true model linearised at the centre's equilibrium"
         elif c.get("source") == "true":
             src = "true model (best case)"
-        lines.append(f"| {name} | {src} | {'yes' if c.get('compiled') else 'no'} | "
-                     f"{_num(c.get('build_seconds'), '.1f')} |")
+        build = (c.get("build_seconds") or 0.0) + (c.get("export_seconds") or 0.0)
+        lines.append(f"| {name} | {src} | {c.get('substeps')} | "
+                     f"{'yes' if c.get('compiled') else 'no'} | {build:.1f} |")
     for rname, per in result["results"].items():
         ref = result["references"][rname]
         extra = (f"period {ref['period']:g} s" if ref["kind"] == "circle"
@@ -68,7 +71,7 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
             f"{[round(v, 4) for v in ref['q0']]}.",
             "",
             f"| controller | error RMS [{unit}] | error max [{unit}] | final [{unit}] | "
-            "input RMS | input change RMS | failures | SQP iterations | solve mean [ms] | "
+            "input RMS | input change RMS | failures | iterations | solve mean [ms] | "
             "p95 [ms] | max [ms] |",
             "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
