@@ -1,0 +1,359 @@
+"""Hyperparameter sweeps and seed ensembles through Ray Tune (``pip install 'softpinn[ray]'``).
+
+:func:`sweep` trains one :func:`softpinn.learn.train.train` run per trial, a grid and/or random
+draws over :class:`learn.config.TrainConfig` settings times seeds (:mod:`.space`), on a local
+Ray instance or a Ray cluster (``address``), with ASHA stopping the worse trials early
+(:mod:`.trial`), and writes::
+
+    OUT/trials/<name>/   every trial a normal run directory (predict, analyze, --resume)
+    OUT/results.csv      one row per trial: settings, best test loss, epochs run, stopped
+    OUT/results.json     early, status, seconds; the best trial's folder
+    OUT/results.md       the same, ranked, with the plot and the best trial linked
+    OUT/sweep.png        best test loss against each swept setting (log scale)
+    OUT/best             a link to the best trial's folder
+    OUT/tune/            Ray Tune's own experiment folder (its logs and per-trial results)
+
+Ray is imported only inside :func:`sweep` (and by :mod:`.trial`, which only it imports), so
+``import softpinn.bridge`` works without it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import logging
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+from softpinn.learn.config import TrainConfig
+
+from .. import outputs
+from ..errors import UserError
+from .space import Random, Trial, check_space, make_trials, parse_space
+
+__all__ = ["METRICS", "RAY_MISSING", "SCHEDULERS", "Random", "SweepResult", "Trial",
+           "make_trials", "parse_space", "sweep"]
+
+SCHEDULERS = ("asha", "none")
+#: What ASHA compares and the trials are ranked by: the best test loss so far (it never rises),
+#: or the test loss of the latest evaluation.
+METRICS = ("best_test_loss", "test_loss")
+RAY_MISSING = "softpinn sweep needs Ray: pip install 'softpinn[ray]'"
+
+
+@dataclass
+class SweepResult:
+    """What :func:`sweep` returns: the output folder, one row per trial (best first) and the
+    best row (None if no trial reached a finite loss)."""
+
+    out: Path
+    rows: list[dict]
+    best: dict | None
+
+    @property
+    def best_dir(self) -> Path | None:
+        return None if self.best is None else self.out / self.best["path"]
+
+
+def _import_ray():
+    try:
+        import ray
+        from ray import tune
+    except ImportError:
+        raise UserError(RAY_MISSING) from None
+    return ray, tune
+
+
+def _check(scheduler, metric, cpus_per_trial, gpus_per_trial, max_concurrent, grace_period,
+           reduction_factor, num_cpus):
+    if scheduler not in SCHEDULERS:
+        raise UserError(f"scheduler: expected one of {', '.join(SCHEDULERS)}, got {scheduler!r}")
+    if metric not in METRICS:
+        raise UserError(f"metric: expected one of {', '.join(METRICS)}, got {metric!r}")
+    for name, v, low in (("cpus_per_trial", cpus_per_trial, 0), ("gpus_per_trial",
+                                                                 gpus_per_trial, None)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (
+                v <= 0 if low == 0 else v < 0):
+            raise UserError(f"{name}: expected a number {'> 0' if low == 0 else '>= 0'}, "
+                            f"got {v!r}")
+    for name, v in (("max_concurrent", max_concurrent), ("grace_period", grace_period),
+                    ("num_cpus", num_cpus)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 1):
+            raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
+    if isinstance(reduction_factor, bool) or not isinstance(reduction_factor, (int, float)) or \
+            not reduction_factor > 1:
+        raise UserError(f"reduction_factor: expected a number > 1, got {reduction_factor!r}")
+
+
+def _trial_dirname(trial) -> str:
+    return trial.config["trial"]
+
+
+def sweep(
+    data,
+    base_config: TrainConfig,
+    space: dict,
+    out: str | Path,
+    *,
+    samples: int = 1,
+    seeds: int = 1,
+    address: str | None = None,
+    scheduler: str = "asha",
+    metric: str = "best_test_loss",
+    cpus_per_trial: float = 1,
+    gpus_per_trial: float = 0,
+    max_concurrent: int | None = None,
+    num_cpus: int | None = None,
+    grace_period: int | None = None,
+    reduction_factor: float = 2,
+    random_seed: int = 0,
+    force: bool = False,
+    verbose: int = 0,
+    progress=None,
+) -> SweepResult:
+    """Train every trial of ``space`` over ``base_config`` on ``data`` through Ray Tune; write
+    ``out`` (see the module's docstring) and return the ranked rows.
+
+    ``space``: setting -> a list of values (a grid) or a random range (``"log:1e-4:1e-2"``, a
+    :class:`Random`); ``samples`` draws of the random settings, each with every combination of
+    the grid, each with ``seeds`` seeds (one trial each; ``base_config.seeds`` must be 1).
+    ``address``: a Ray cluster (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``); None
+    starts a local Ray instance (unless this process is connected to one already) and stops it
+    after. On a cluster ``out`` must be a folder every node sees at the same path.
+    ``scheduler``: "asha" (asynchronous successive halving on ``metric`` at every evaluation:
+    from ``grace_period`` epochs on (default a tenth of the most epochs), at rungs
+    ``grace_period * reduction_factor**k``, a trial whose loss is not among the best
+    ``1 / reduction_factor`` of those that reached the rung is stopped) or "none".
+    ``cpus_per_trial`` / ``gpus_per_trial``: Ray resources of a trial (fractions share a GPU);
+    ``max_concurrent``: at most that many trials at once (default: as the resources allow);
+    ``num_cpus``: the CPUs of a local Ray instance this starts (default: all).
+    ``random_seed`` draws the random settings. ``out`` is refused if it holds anything but an
+    earlier sweep's output, unless ``force``. ``verbose``: Ray Tune's console output (0-3)
+    and the trials' logs; ``progress(info)`` is called on every reported evaluation and every
+    finished trial (see :func:`_callback`; the CLI draws a progress bar from it).
+    """
+    _check(scheduler, metric, cpus_per_trial, gpus_per_trial, max_concurrent, grace_period,
+           reduction_factor, num_cpus)
+    if address is not None and num_cpus is not None:
+        raise UserError("num_cpus: sizes a local Ray instance; a cluster (address) has its own")
+    if not isinstance(base_config, TrainConfig):
+        raise UserError(f"base_config: expected a TrainConfig, got {type(base_config).__name__}")
+    space = check_space(space)
+    trials = make_trials(base_config, space, samples=samples, seeds=seeds,
+                         random_seed=random_seed)
+    most = max(t.config.epochs for t in trials)
+    if scheduler == "asha" and grace_period is not None and grace_period > most:
+        raise UserError(f"grace_period: {grace_period} is more than the epochs ({most})")
+    ray, tune = _import_ray()
+    from softpinn.learn.data import Dataset, load_dataset
+
+    mc = base_config.model
+    if not isinstance(data, Dataset):
+        data = load_dataset(data, n=mc.n, m=mc.m)
+    elif (data.n, data.m) != (mc.n, mc.m):
+        raise UserError(f"dataset file {data.path}: model has n={mc.n}, m={mc.m}; the file has "
+                        f"n={data.n}, m={data.m}")
+
+    out = Path(out)
+    ours = outputs.owner(out) == "sweep"
+    out = outputs.claim(out, "sweep", force=force)
+    if ours and (out / "tune").is_dir():
+        shutil.rmtree(out / "tune")  # an earlier sweep's Ray Tune folder
+    root = out.resolve()
+    specs = []
+    for t in trials:
+        tdir = root / "trials" / t.name
+        specs.append({"name": t.name, "config": t.config.to_dict(), "dir": str(tdir),
+                      "force": tdir.is_dir() and any(tdir.iterdir()), "gpus": gpus_per_trial})
+
+    started = False
+    if not ray.is_initialized():
+        try:
+            ray.init(address=address, num_cpus=num_cpus, include_dashboard=False,
+                     log_to_driver=verbose > 0,
+                     logging_level="INFO" if verbose > 0 else "ERROR")
+        except (ConnectionError, ValueError, RuntimeError) as exc:
+            where = f"the Ray cluster at {address}" if address else "a local Ray instance"
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise UserError(f"address: cannot start or reach {where}: {first}") from None
+        started = True
+    if progress is not None:
+        progress({"event": "start", "trial": None, "epoch": None, "best_test_loss": None,
+                  "finished": 0, "total": len(trials)})
+    try:
+        grid = _tune(tune, trials, specs, data, root, scheduler=scheduler, metric=metric,
+                     cpus=cpus_per_trial, gpus=gpus_per_trial, max_concurrent=max_concurrent,
+                     grace_period=grace_period, reduction_factor=reduction_factor,
+                     verbose=verbose, progress=progress)
+    finally:
+        if started:
+            ray.shutdown()
+    return _write_results(out, trials, grid, data, base_config, space, samples=samples,
+                          seeds=seeds, scheduler=scheduler, metric=metric, address=address)
+
+
+def _tune(tune, trials, specs, data, root, *, scheduler, metric, cpus, gpus, max_concurrent,
+          grace_period, reduction_factor, verbose, progress):
+    """Run the trials; return {trial name: ray.tune.Result}."""
+    from ray.tune.schedulers import ASHAScheduler, FIFOScheduler
+
+    from .trial import Trial as TrialTrainable
+
+    max_t = max(t.config.epochs for t in trials)
+    if scheduler == "asha":
+        grace = grace_period or max(1, max_t // 10)
+        sched = ASHAScheduler(time_attr="epoch", max_t=max_t, grace_period=grace,
+                              reduction_factor=reduction_factor, stop_last_trials=False)
+    else:
+        sched = FIFOScheduler()
+    trainable = tune.with_resources(
+        tune.with_parameters(TrialTrainable, data=data, specs={s["name"]: s for s in specs}),
+        {"cpu": cpus, "gpu": gpus})
+    tuner = tune.Tuner(
+        trainable,
+        param_space={"trial": tune.grid_search([s["name"] for s in specs])},
+        tune_config=tune.TuneConfig(
+            metric=metric, mode="min", scheduler=sched, num_samples=1,
+            max_concurrent_trials=max_concurrent, trial_dirname_creator=_trial_dirname,
+            reuse_actors=True,
+        ),
+        run_config=tune.RunConfig(
+            name="tune", storage_path=str(root), verbose=verbose, log_to_file=True,
+            checkpoint_config=tune.CheckpointConfig(checkpoint_frequency=0,
+                                                    checkpoint_at_end=False),
+            callbacks=[] if progress is None else [_callback(tune, progress, len(specs))],
+        ),
+    )
+    quiet = contextlib.redirect_stdout(io.StringIO()) if verbose == 0 else contextlib.nullcontext()
+    tune_log = logging.getLogger("ray.tune")
+    level = tune_log.level
+    if verbose == 0:
+        tune_log.setLevel(logging.WARNING)
+    try:
+        with quiet:
+            results = tuner.fit()
+    finally:
+        tune_log.setLevel(level)
+    return {results[i].config["trial"]: results[i] for i in range(len(results))}
+
+
+def _callback(tune, progress, total):
+    """A Ray Tune callback (in this process) that hands ``progress`` one dict per event:
+    ``{"event": "result" | "complete" | "error", "trial", "epoch", "best_test_loss",
+    "finished", "total"}`` (and one ``"start"`` from :func:`sweep` once Ray is up)."""
+
+    class Progress(tune.Callback):
+        def __init__(self):
+            self.finished = 0
+
+        def _send(self, event, trial, result):
+            result = result or {}
+            progress({"event": event, "trial": trial.config["trial"],
+                      "epoch": result.get("epoch"),
+                      "best_test_loss": result.get("best_test_loss"),
+                      "finished": self.finished, "total": total})
+
+        def on_trial_result(self, iteration, trials, trial, result, **info):
+            self._send("result", trial, result)
+
+        def on_trial_complete(self, iteration, trials, trial, **info):
+            self.finished += 1
+            self._send("complete", trial, trial.last_result)
+
+        def on_trial_error(self, iteration, trials, trial, **info):
+            self.finished += 1
+            self._send("error", trial, trial.last_result)
+
+    return Progress()
+
+
+def _row(trial: Trial, result, root: Path, scheduler: str) -> dict:
+    from softpinn.learn.checkpoint import read_json
+
+    tdir = root / "trials" / trial.name
+    last = dict(result.metrics or {}) if result is not None else {}
+    error = None if result is None else result.error
+    metrics = None
+    if (tdir / "metrics.json").is_file() and (tdir / "model.eqx").is_file():
+        try:
+            metrics = read_json(tdir / "metrics.json")
+        except Exception:  # noqa: BLE001 - a damaged file: the row says so
+            metrics = None
+    stopped_early = False
+    if error is not None:
+        lines = [s for s in str(error).strip().splitlines() if s.strip()]
+        status = "error: " + (lines[-1].strip() if lines else type(error).__name__)
+    elif result is None:
+        status = "not run"
+    elif metrics is None:
+        status = "failed: no run directory"
+    else:
+        stopped = str(metrics.get("stopped", ""))
+        if last.get("status") == "diverged" or stopped.startswith("diverged"):
+            status = "diverged"
+        elif stopped.startswith("early stop"):
+            status, stopped_early = "early stop (patience)", True
+        elif stopped == "running":
+            stopped_early = True
+            status = (f"stopped by ASHA at epoch {metrics.get('epochs_run')}"
+                      if scheduler == "asha" else "interrupted")
+        else:
+            status = "completed"
+    best = None if metrics is None else metrics.get("best_test_loss")
+    return {
+        "trial": trial.name,
+        "settings": dict(trial.settings),
+        "seed": trial.seed,
+        "best_test_loss": None if best is None or not math.isfinite(best) else float(best),
+        "final_test_loss": None if metrics is None else metrics.get("final_test_loss"),
+        "epochs_run": None if metrics is None else metrics.get("epochs_run"),
+        "epochs": trial.config.epochs,
+        "stopped_early": stopped_early,
+        "status": status,
+        "seconds": None if metrics is None else metrics.get("seconds"),
+        "wall_seconds": None if last.get("time_total_s") is None
+        else round(float(last["time_total_s"]), 3),
+        "path": f"trials/{trial.name}" if metrics is not None else None,
+        "warnings": list(last.get("warnings") or []),
+    }
+
+
+def _write_results(out, trials, grid, data, base_config, space, *, samples, seeds, scheduler,
+                   metric, address) -> SweepResult:
+    from softpinn.learn.rundir import dataset_info
+
+    from . import results as res
+
+    root = out.resolve()
+    rows = res.rank([_row(t, grid.get(t.name), root, scheduler) for t in trials])
+    ok = [r for r in rows if r["best_test_loss"] is not None]
+    best = ok[0] if ok else None
+    names = list(space)
+    info = {
+        "data": dataset_info(data),
+        "model": base_config.model.kind,
+        "base_config": base_config.to_dict(),
+        "space": {k: (v.describe() if isinstance(v, Random) else v) for k, v in space.items()},
+        "samples": samples,
+        "seeds": seeds,
+        "scheduler": scheduler,
+        "metric": metric,
+        "address": address,
+        "trials": len(trials),
+        "best": None if best is None else {
+            "trial": best["trial"], "path": best["path"], "dir": str(root / best["path"]),
+            "link": "best", "best_test_loss": best["best_test_loss"],
+            "settings": best["settings"], "seed": best["seed"]},
+    }
+    written = [
+        res.write_csv(out / "results.csv", rows, names),
+        res.write_json(out / "results.json", rows, info),
+        res.write_markdown(out / "results.md", rows, names, info),
+        res.plot(out / "sweep.png", rows, space, metric.replace("_", " ")),
+    ]
+    res.link_best(out, best)
+    outputs.record(out, [*written, *outputs.written_files(out / "tune")])
+    return SweepResult(out=out, rows=rows, best=best)
+
