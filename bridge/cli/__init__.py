@@ -19,6 +19,7 @@ COMMAND_MODULES = (
     "softpinn.bridge.cli.learn",
     "softpinn.bridge.cli.bridge",
     "softpinn.bridge.cli.show",
+    "softpinn.bridge.cli.sweep",
     "softpinn.bridge.export.cli",
     "softpinn.bridge.cli.control",
 )
