@@ -115,6 +115,34 @@ def tip_wrench_matrix(spec: ModelSpec, q, qd, i: int):
     return ca.horzcat(-Jb[0, :].T, -Jb[1, :].T, Jvb[2, :].T)
 
 
+# ------------------------------------------------------------------- the equations themselves
+# Shared by every model (and every CasADi type: SX, MX): the terms come from the energy parts,
+# ``solve(M, b)`` is a symmetric positive definite solve (symbolic.linalg).
+
+
+def forward_dynamics(M, Cqd, G, D, qd, A, u, solve):
+    """Eq. 4 solved for the accelerations: qdd = M^-1 (A u - C qd - G - D qd)."""
+    rhs = -Cqd - G - D @ qd
+    if A is not None:
+        rhs = rhs + A @ u
+    return solve(M, rhs)
+
+
+def inverse_dynamics(M, qdd, Cqd, G, D, qd):
+    """Eq. 4's left side: the generalised force A u = M qdd + C qd + G + D qd."""
+    return M @ qdd + Cqd + G + D @ qd
+
+
+def hamiltonian_field(M, p, G, D, A, u, solve, dTdq):
+    """Eq. 7: qdot = dH/dp = M^-1 p, pdot = -dH/dq - D qdot + A u, where -dH/dq = dT/dq - G at
+    fixed qdot (``dTdq(qdot)`` gives the kinetic term's partial derivative in q)."""
+    qdot = solve(M, p)
+    pdot = dTdq(qdot) - G - D @ qdot
+    if A is not None:
+        pdot = pdot + A @ u
+    return qdot, pdot
+
+
 def derive(spec: ModelSpec, order: int = DEFAULT_ORDER, hoist: bool = True) -> SymbolicModel:
     """The symbolic model of ``spec`` (quadrature ``order`` for the zeta integrals; ``hoist``:
     use :class:`~symbolic.energies.HoistedPlate` for M, G and C qd of spatial segments)."""

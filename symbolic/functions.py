@@ -23,6 +23,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from . import eom
 from . import kinematics as kin
 from .energies import DEFAULT_ORDER, check_order
 from .eom import Part, SymbolicModel, derive
@@ -294,11 +295,10 @@ class _Builder:
             if self.uses_chain_for_A():  # one pass over the segments for A and the terms
                 bases = self.chain(q, qd, len(self.model.spec.segments) + 1)
             M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key, bases)
-            rhs = -Cqd - G - D @ qd
+            A = None
             if m:
                 A = self.tip_wrench_A(bases) if bases is not None else self.A_function()(q)
-                rhs = rhs + A @ u
-            qdd = self.solver(1, key)(M, rhs)
+            qdd = eom.forward_dynamics(M, Cqd, G, D, qd, A, u, self.solver(1, key))
             outs, ins = [qdd], [q, qd, u]
         elif key == "ode":
             x = ca.MX.sym("x", 2 * n)
@@ -307,7 +307,7 @@ class _Builder:
         elif key == "inverse":
             qdd = ca.MX.sym("qdd", n)
             M, G, Cqd = self.terms(("M", "G", "Cqd"), q, qd, key)
-            outs, ins = [M @ qdd + Cqd + G + D @ qd], [q, qd, qdd]
+            outs, ins = [eom.inverse_dynamics(M, qdd, Cqd, G, D, qd)], [q, qd, qdd]
         elif key in ("energy", "kinetic", "potential"):
             T, V = self.terms(("T", "V"), q, None if key == "potential" else qd, key)
             val = {"energy": T + V, "kinetic": T, "potential": V}[key]
@@ -318,11 +318,9 @@ class _Builder:
         elif key == "hamiltonian":
             p = ca.MX.sym("p", n)
             M, G = self.terms(("M", "G"), q, None, key)
-            qdot = self.solver(1, key)(M, p)
-            (dTdq,) = self.terms(("dTdq",), q, qdot, key + "_dTdq")
-            pdot = dTdq - G - D @ qdot
-            if m:
-                pdot = pdot + self.A_function()(q) @ u
+            qdot, pdot = eom.hamiltonian_field(
+                M, p, G, D, self.A_function()(q) if m else None, u, self.solver(1, key),
+                lambda v: self.terms(("dTdq",), q, v, key + "_dTdq")[0])
             outs, ins = [qdot, pdot], [q, p, u]
         else:
             raise KeyError(key)
