@@ -190,3 +190,16 @@ def test_four_trial_sweep_with_asha(local_ray, capsys, data, tmp_path):
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["command"] == "sweep"
     assert {"results.csv", "results.json", "results.md", "sweep.png"} <= set(manifest["files"])
+
+
+def test_a_failing_trial_is_a_row(local_ray, data, tmp_path):
+    """A trial whose settings the run refuses (more devices than there are) is a row with the
+    one-line error, not a traceback; with no trial left there is no best link."""
+    res = sweep(data, _base(devices=3), {"lr": [1e-2]}, tmp_path / "s", scheduler="none")
+    (row,) = res.rows
+    assert row["status"].startswith("error: devices: 3 asked for"), row
+    assert row["path"] is None and res.best is None and res.best_dir is None
+    assert not (tmp_path / "s" / "best").exists()
+    md = (tmp_path / "s" / "results.md").read_text()
+    assert "No trial finished with a finite test loss" in md
+    assert (tmp_path / "s" / "sweep.png").is_file()

@@ -120,7 +120,8 @@ def register(subparsers) -> None:
                    help="asha: stop trials whose loss is among the worse at rungs of "
                    "GRACE * FACTOR^k epochs; none: run every trial to the end")
     s.add_argument("--metric", choices=METRICS, default="best_test_loss",
-                   help="what ASHA compares and the trials are ranked by")
+                   help="what ASHA compares at its rungs (the trials are ranked by their best "
+                   "test loss, that of the model each run keeps)")
     s.add_argument("--grace-period", type=int, default=None, metavar="EPOCHS",
                    help="epochs before ASHA may stop a trial (default: a tenth of --epochs)")
     s.add_argument("--reduction-factor", type=float, default=2.0, metavar="FACTOR",
@@ -235,13 +236,16 @@ def cmd_sweep(args) -> int:
         print(json.dumps(_nulls({"out": str(result.out), "best": best, "trials": len(rows),
                                  "results": rows}), allow_nan=False))
         return 0 if best is not None else 1
-    stopped = sum(r["stopped_early"] for r in rows)
-    failed = sum(r["path"] is None for r in rows)
-    line = f"{len(rows)} trials: {len(rows) - stopped - failed} ran to the end, {stopped} " \
-           "stopped early"
-    print(line + (f", {failed} failed" if failed else ""))
+    counts = {"completed": sum(r["status"] == "completed" for r in rows),
+              "stopped early": sum(r["stopped_early"] for r in rows),
+              "diverged": sum(r["status"] == "diverged" for r in rows),
+              "failed": sum(r["path"] is None for r in rows)}
+    print(f"{len(rows)} trials: " + ", ".join(f"{n} {k}" for k, n in counts.items()
+                                              if n or k in ("completed", "stopped early")))
     if best is None:
-        print("no trial reached a finite test loss; see " + str(result.out / "results.md"))
+        errors = [r["status"] for r in rows if r["status"].startswith("error")]
+        print("no trial reached a finite test loss" + (f" ({errors[0]})" if errors else "")
+              + "; see " + str(result.out / "results.md"))
         return 1
     settings = ", ".join(f"{dashed(k)}={v}" for k, v in best["settings"].items())
     print(f"best: {best['trial']} ({settings}{', ' if settings else ''}seed {best['seed']}), "

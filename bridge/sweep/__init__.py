@@ -37,8 +37,9 @@ __all__ = ["METRICS", "RAY_MISSING", "SCHEDULERS", "Random", "SweepResult", "Tri
            "make_trials", "parse_space", "sweep"]
 
 SCHEDULERS = ("asha", "none")
-#: What ASHA compares and the trials are ranked by: the best test loss so far (it never rises),
-#: or the test loss of the latest evaluation.
+#: What ASHA compares at its rungs: the best test loss so far (it never rises), or the test loss
+#: of the latest evaluation. The trials are ranked by their best test loss either way (the loss
+#: of the model each run directory keeps).
 METRICS = ("best_test_loss", "test_loss")
 RAY_MISSING = "softpinn sweep needs Ray: pip install 'softpinn[ray]'"
 
@@ -183,20 +184,26 @@ def sweep(
         progress({"event": "start", "trial": None, "epoch": None, "best_test_loss": None,
                   "finished": 0, "total": len(trials)})
     try:
-        grid = _tune(tune, trials, specs, data, root, scheduler=scheduler, metric=metric,
-                     cpus=cpus_per_trial, gpus=gpus_per_trial, max_concurrent=max_concurrent,
-                     grace_period=grace_period, reduction_factor=reduction_factor,
-                     verbose=verbose, progress=progress)
+        grid, finished = _tune(tune, trials, specs, data, root, scheduler=scheduler,
+                               metric=metric, cpus=cpus_per_trial, gpus=gpus_per_trial,
+                               max_concurrent=max_concurrent, grace_period=grace_period,
+                               reduction_factor=reduction_factor, verbose=verbose,
+                               progress=progress)
     finally:
         if started:
             ray.shutdown()
-    return _write_results(out, trials, grid, data, base_config, space, samples=samples,
-                          seeds=seeds, scheduler=scheduler, metric=metric, address=address)
+    result = _write_results(out, trials, grid, finished, data, base_config, space,
+                            samples=samples, seeds=seeds, scheduler=scheduler, metric=metric,
+                            address=address)
+    if len(finished) < len(trials):  # Ctrl-C: Tune ended the trials; what they reached is kept
+        raise KeyboardInterrupt
+    return result
 
 
 def _tune(tune, trials, specs, data, root, *, scheduler, metric, cpus, gpus, max_concurrent,
           grace_period, reduction_factor, verbose, progress):
-    """Run the trials; return {trial name: ray.tune.Result}."""
+    """Run the trials; return ({trial name: ray.tune.Result}, the names of the trials that
+    finished: completed, stopped by the scheduler or failed, not interrupted)."""
     from ray.tune.schedulers import ASHAScheduler, FIFOScheduler
 
     from .trial import Trial as TrialTrainable
@@ -211,6 +218,7 @@ def _tune(tune, trials, specs, data, root, *, scheduler, metric, cpus, gpus, max
     trainable = tune.with_resources(
         tune.with_parameters(TrialTrainable, data=data, specs={s["name"]: s for s in specs}),
         {"cpu": cpus, "gpu": gpus})
+    events = _callback(tune, progress, len(specs))
     tuner = tune.Tuner(
         trainable,
         param_space={"trial": tune.grid_search([s["name"] for s in specs])},
@@ -223,20 +231,25 @@ def _tune(tune, trials, specs, data, root, *, scheduler, metric, cpus, gpus, max
             name="tune", storage_path=str(root), verbose=verbose, log_to_file=True,
             checkpoint_config=tune.CheckpointConfig(checkpoint_frequency=0,
                                                     checkpoint_at_end=False),
-            callbacks=[] if progress is None else [_callback(tune, progress, len(specs))],
+            callbacks=[events],
         ),
     )
     quiet = contextlib.redirect_stdout(io.StringIO()) if verbose == 0 else contextlib.nullcontext()
     tune_log = logging.getLogger("ray.tune")
     level = tune_log.level
-    if verbose == 0:
-        tune_log.setLevel(logging.WARNING)
+    if verbose == 0:  # Tune's messages (an interruption, a trial's traceback) stay in OUT/tune
+        tune_log.setLevel(logging.CRITICAL)
     try:
         with quiet:
             results = tuner.fit()
     finally:
         tune_log.setLevel(level)
-    return {results[i].config["trial"]: results[i] for i in range(len(results))}
+    grid = {}
+    for i in range(len(results)):
+        name = (results[i].config or {}).get("trial")  # no config: never started
+        if name is not None:
+            grid[name] = results[i]
+    return grid, set(events.names)
 
 
 def _callback(tune, progress, total):
@@ -247,8 +260,14 @@ def _callback(tune, progress, total):
     class Progress(tune.Callback):
         def __init__(self):
             self.finished = 0
+            self.names: list[str] = []
 
         def _send(self, event, trial, result):
+            if event != "result":
+                self.finished += 1
+                self.names.append(trial.config["trial"])
+            if progress is None:
+                return
             result = result or {}
             progress({"event": event, "trial": trial.config["trial"],
                       "epoch": result.get("epoch"),
@@ -259,17 +278,15 @@ def _callback(tune, progress, total):
             self._send("result", trial, result)
 
         def on_trial_complete(self, iteration, trials, trial, **info):
-            self.finished += 1
             self._send("complete", trial, trial.last_result)
 
         def on_trial_error(self, iteration, trials, trial, **info):
-            self.finished += 1
             self._send("error", trial, trial.last_result)
 
     return Progress()
 
 
-def _row(trial: Trial, result, root: Path, scheduler: str) -> dict:
+def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> dict:
     from softpinn.learn.checkpoint import read_json
 
     tdir = root / "trials" / trial.name
@@ -285,10 +302,16 @@ def _row(trial: Trial, result, root: Path, scheduler: str) -> dict:
     if error is not None:
         lines = [s for s in str(error).strip().splitlines() if s.strip()]
         status = "error: " + (lines[-1].strip() if lines else type(error).__name__)
+        if (root / "tune" / trial.name / "error.txt").is_file():
+            status += f" (traceback: tune/{trial.name}/error.txt)"
+    elif last.get("status") == "error":
+        status = f"error: {last.get('error')}"
     elif result is None:
         status = "not run"
     elif metrics is None:
-        status = "failed: no run directory"
+        status = "failed: no run directory" if finished else "not run (interrupted)"
+    elif not finished:
+        status = "interrupted"
     else:
         stopped = str(metrics.get("stopped", ""))
         if last.get("status") == "diverged" or stopped.startswith("diverged"):
@@ -320,14 +343,15 @@ def _row(trial: Trial, result, root: Path, scheduler: str) -> dict:
     }
 
 
-def _write_results(out, trials, grid, data, base_config, space, *, samples, seeds, scheduler,
-                   metric, address) -> SweepResult:
+def _write_results(out, trials, grid, finished, data, base_config, space, *, samples, seeds,
+                   scheduler, metric, address) -> SweepResult:
     from softpinn.learn.rundir import dataset_info
 
     from . import results as res
 
     root = out.resolve()
-    rows = res.rank([_row(t, grid.get(t.name), root, scheduler) for t in trials])
+    rows = res.rank([_row(t, grid.get(t.name), t.name in finished, root, scheduler)
+                     for t in trials])
     ok = [r for r in rows if r["best_test_loss"] is not None]
     best = ok[0] if ok else None
     names = list(space)

@@ -121,10 +121,15 @@ class Trial(tune.Trainable):
         if kind == "report":
             self._waiting = True
             return payload
+        # Tune wants the metrics in every result; NaN (which ASHA ignores) where there are none,
+        # and no epoch, so that ASHA does not record the trial at a rung
+        none = {"best_test_loss": float("nan"), "test_loss": float("nan"), "done": True}
         if kind == "error":
+            if getattr(type(payload), "softpinn_user_error", False):  # one line, no traceback
+                return {**none, "status": "error", "error": " ".join(str(payload).split())}
             raise payload
         if kind == "stopped":  # interrupted without Tune asking: report what there is
-            return {"status": "interrupted", "done": True}
+            return {**none, "status": "interrupted"}
         return {**payload, "done": True}
 
     def reset_config(self, new_config) -> bool:
