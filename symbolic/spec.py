@@ -9,8 +9,9 @@ A spec describes the physics of one of four kinds of system:
 * ``double-pendulum``: the point-mass double pendulum (eq. 26).
 
 It may also carry a ``[data]`` table (how to generate data for it; validated by
-:mod:`symbolic.datasets`) and a ``[training]`` table (the task recipe, validated here when the
-spec loads: :mod:`symbolic.recipe`).
+:mod:`symbolic.datasets`), a ``[training]`` table (the task recipe, validated here when the
+spec loads: :mod:`symbolic.recipe`) and a ``[sensor]`` table (a simulated sensor that records
+the arm, validated here: :mod:`symbolic.sensor`).
 
 ``load_spec`` accepts a preset name (``task1`` ... ``task5``) or a path to a ``.toml`` file, and
 refuses a bad spec with a :class:`SpecError` naming the file and the field.
@@ -29,6 +30,7 @@ from typing import Any
 
 from .errors import UserError
 from .recipe import Recipe, RecipeError, parse_recipe
+from .sensor import SensorError, parse_sensor
 
 KINDS = ("spatial-pcc", "planar-pcc", "mass-spring-damper", "double-pendulum")
 PARAMETERIZATIONS = ("delta", "phi-theta")
@@ -88,6 +90,7 @@ class ModelSpec:
     description: str = ""
     data: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
     training: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
+    sensor: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
 
     @property
     def n(self) -> int:
@@ -136,7 +139,8 @@ class ModelSpec:
         """The physical part of the spec as plain JSON-able data (what the EOM depend on)."""
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}
         for f in dataclasses.fields(self):
-            if f.name in ("name", "kind", "source", "data", "training", "description"):
+            if f.name in ("name", "kind", "source", "data", "training", "sensor",
+                          "description"):
                 continue
             value = getattr(self, f.name)
             if f.name == "segments":
@@ -156,6 +160,8 @@ class ModelSpec:
             out["data"] = _plain(self.data)
         if self.training:
             out["training"] = _plain(self.training)
+        if self.sensor:
+            out["sensor"] = _plain(self.sensor)
         return out
 
 
@@ -243,12 +249,15 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
     description = v.string(raw, "description", default="")
     data = v.table(raw, "data")
     training = v.table(raw, "training")
+    sensor = v.table(raw, "sensor")
     common = dict(
-        name=name, kind=kind, source=source, description=description, data=data, training=training
+        name=name, kind=kind, source=source, description=description, data=data, training=training,
+        sensor=sensor,
     )
 
     if kind == "spatial-pcc":
-        allowed = {"name", "kind", "description", "data", "training", "parameterization",
+        allowed = {"name", "kind", "description", "data", "training", "sensor",
+                   "parameterization",
                    "gravity", "actuators_per_segment", "actuation", "segment"}
         v.no_unknown(raw, allowed, "")
         param = v.choice(raw, "parameterization", PARAMETERIZATIONS, default="delta")
@@ -259,7 +268,8 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                          segments=segments, actuation="generalized", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "tip-wrench", "tendon", "none"))
     elif kind == "planar-pcc":
-        allowed = {"name", "kind", "description", "data", "training", "gravity", "actuation",
+        allowed = {"name", "kind", "description", "data", "training", "sensor",
+                   "gravity", "actuation",
                    "segment"}
         v.no_unknown(raw, allowed, "")
         gravity = v.floats(raw, "gravity", 2, default=(0.0, 9.81))
@@ -267,7 +277,8 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
         spec = ModelSpec(gravity=gravity, segments=segments, actuation="generalized", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"))
     elif kind == "mass-spring-damper":
-        allowed = {"name", "kind", "description", "data", "training", "masses", "springs",
+        allowed = {"name", "kind", "description", "data", "training", "sensor",
+                   "masses", "springs",
                    "dampers", "actuation"}
         v.no_unknown(raw, allowed, "")
         masses = v.floats(raw, "masses", None, positive=True)
@@ -278,7 +289,8 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                          **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"), default="none")
     else:  # double-pendulum
-        allowed = {"name", "kind", "description", "data", "training", "masses", "lengths", "g",
+        allowed = {"name", "kind", "description", "data", "training", "sensor",
+                   "masses", "lengths", "g",
                    "damping", "actuation"}
         v.no_unknown(raw, allowed, "")
         masses = v.floats(raw, "masses", 2, positive=True)
@@ -301,6 +313,10 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
     try:
         parse_recipe(training, spec.n)
     except RecipeError as e:
+        v.fail(e.where, e.message)
+    try:
+        parse_sensor(sensor, kind=kind, segments=len(spec.segments))
+    except SensorError as e:
         v.fail(e.where, e.message)
     return spec
 
