@@ -117,6 +117,10 @@ def register(subparsers) -> None:
     p.add_argument(
         "--dt", type=float, metavar="S", help="fixed RK4 step [s] (implies --integrator rk4)"
     )
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                   help="farm the trajectories out to Ray: a local instance (no ADDRESS), "
+                   "'auto' or HOST:PORT of a cluster (needs softpinn[ray]; the data set is the "
+                   "same as without)")
     p.add_argument("--integrator", choices=("cvodes", "rk4", "jax-rk4"),
                    help="cvodes (adaptive, CasADi), rk4 (fixed step, CasADi) or jax-rk4 (fixed "
                    "step on the exact model translated to JAX: every trajectory at once, on a "
@@ -371,7 +375,20 @@ def cmd_simulate(args) -> int:
     try:
         t0 = time.perf_counter()
         with _warnings_as_lines():
-            if use_jax:
+            if args.ray is not None and use_jax:
+                raise UserError("--ray: farms out the CasADi integrators; --integrator jax-rk4 "
+                                "runs every trajectory at once already")
+            if args.ray is not None:
+                from softpinn.symbolic.farm import ray_simulator
+
+                sim = ray_simulator(spec, address=args.ray, compile=not args.no_compile,
+                                    cache=args.cache, num_cpus=args.threads
+                                    if args.ray == "local" and args.threads > 1 else None)
+                data = make_dataset(plan=plan, simulator=sim,
+                                    progress=bar.update if bar is not None else None,
+                                    simulator_meta={"compiled": not args.no_compile,
+                                                    "farmed_out": f"ray ({args.ray})"})
+            elif use_jax:
                 from ..cli.learn import _enable_x64
                 from ..exact import make_dataset as jax_dataset
 
