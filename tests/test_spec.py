@@ -32,10 +32,10 @@ def write(tmp_path, text, name="spec.toml"):
 
 
 def test_presets_load():
-    assert list_presets() == ["task1", "task2", "task3", "task4", "task5"]
+    assert list_presets() == ["experiment", "task1", "task2", "task3", "task4", "task5"]
     sizes = {name: (load_spec(name).n, load_spec(name).m) for name in list_presets()}
-    assert sizes == {"task1": (2, 0), "task2": (2, 0), "task3": (2, 1), "task4": (3, 3),
-                     "task5": (6, 6)}
+    assert sizes == {"experiment": (3, 4), "task1": (2, 0), "task2": (2, 0), "task3": (2, 1),
+                     "task4": (3, 3), "task5": (6, 6)}
     spec = load_spec("task4")
     assert load_spec(spec) is spec
     assert spec.segments[0].mass == 0.3 and spec.gravity == (0.0, 0.0, 9.81)

@@ -13,6 +13,8 @@ from typing import Any
 from ..errors import UserError
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
+#: studies ``reproduce`` runs with their own pipeline (the paper's experiment: .experiment)
+EXPERIMENTS = ("experiment",)
 PHYSICS_KINDS = ("lagrangian", "hamiltonian")
 
 #: The paper's smallest networks (4 wide for Task 1) did not reach its losses in our budgets;
@@ -36,8 +38,9 @@ class ReproduceConfig:
     analysis_points: int | None = None  # sampled q for the analysis (default 200, quick 40)
 
     def __post_init__(self):
-        if self.task not in TASKS:
-            raise UserError(f"task: expected one of {', '.join(TASKS)}, got {self.task!r}")
+        if self.task not in TASKS + EXPERIMENTS:
+            raise UserError(f"task: expected one of {', '.join(TASKS + EXPERIMENTS)}, got "
+                            f"{self.task!r}")
         if not isinstance(self.seeds, int) or self.seeds < 1:
             raise UserError(f"--seeds must be an integer >= 1, got {self.seeds!r}")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):

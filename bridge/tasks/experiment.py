@@ -1,0 +1,247 @@
+"""The paper's experiment with a simulated stand-in: ``softpinn reproduce experiment``.
+
+Section V of the paper learned a one-segment tendon-driven arm from an IMU on its tip (Table IV,
+Figs. 13-17 and 51-63); the recordings are not public. This pipeline builds the closest honest
+stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the paper's study on it:
+
+1. **data**: simulate the arm (the preset's physics and ``[data]``: four tendons given sinusoids,
+   128 trajectories, the last 8 for test) at the highest rate of the study;
+2. **record**: the preset's ``[sensor]`` (an IMU: tip orientation with white noise and a drifting
+   bias, :mod:`symbolic.sensor`) records every trajectory at each rate of the study (``[data]
+   rates``; the sensor's own ``rate_hz`` is the paper's, 5 Hz) and writes the CSV files
+   ``softpinn import`` reads;
+3. **import**: each recording through ``softpinn import``'s library (orientation -> bending, the
+   stretch unobservable and set to 0) with each preprocessing of :data:`PREPROCESSING` (none,
+   moving average, piecewise polynomial fits, Savitzky-Golay), windows set in seconds;
+4. **train**: a Lagrangian network and a black box on each data set, at the data's step (the
+   paper's 0.2 s at 5 Hz), with RK4 sub-steps no longer than the recipe's ``max_step``;
+5. **predict**: one-step train and test errors, the prediction over the recipe's horizon (5 s)
+   without reset (Figs. 14, 16) and over the whole test trajectory with the state reset from the
+   processed measurement every :data:`RESET_EVERY` seconds (Figs. 15, 17), each against the
+   processed measurement (what the paper could score) and against the true arm (what only a
+   simulation knows);
+6. **bending**: the Lagrangian network's M, D, G, A in the observable bending block (dx, dy at
+   dL = 0) against the true ones, through the transforms of :mod:`bridge.analysis`;
+7. **report**: ``report.md`` with the Table IV analogue beside the paper's figures, the rate x
+   preprocessing table, the matrices, and the figures (:mod:`bridge.report.experiment`).
+
+Every step is a stage (:class:`.stages.Stages`): rerun with the same settings, finished stages are
+skipped. ``quick`` shrinks the data, the rates, the networks and the budgets to run in a minute or
+two.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from .. import outputs
+from .experiment_stages import (
+    rate_name,
+    stage_bending,
+    stage_import,
+    stage_predict,
+    stage_record,
+    stage_simulate,
+    stage_train,
+)
+from .plan import MIN_WIDTH, ReproduceConfig
+from .stages import Stages, write_json
+
+#: The state is reset from the processed measurement this often in the long predictions [s]
+#: (the paper's Figs. 15, 17: "3 seconds state updating").
+RESET_EVERY = 3.0
+
+#: The preprocessings compared, as ``softpinn import --smooth`` texts made for each rate from
+#: windows in seconds (at least ``min`` samples): the paper's moving average (MATLAB movmean)
+#: and piecewise polynomial fits (polyfit), Savitzky-Golay, and none.
+PREPROCESSING: dict[str, dict[str, Any]] = {
+    "none": {},
+    "movmean": {"window_s": 0.2, "min": 3},
+    "polyfit": {"degree": 3, "window_s": 1.0, "min": 5},
+    "savgol": {"degree": 2, "window_s": 0.4, "min": 5},
+}
+#: Table IV's columns: which of ours stands beside which of the paper's
+PAPER_COLUMNS = {"movmean": "smoothing", "polyfit": "polynomial_fitting"}
+KINDS = ("lagrangian", "blackbox")
+#: trajectories of a quick run (the last two for test)
+QUICK_TRAJECTORIES, QUICK_TEST = 12, 2
+
+
+def smoother(name: str, rate: float) -> str:
+    """The ``--smooth`` text of preprocessing ``name`` at ``rate`` Hz."""
+    p = PREPROCESSING[name]
+    if name == "none":
+        return "none"
+    w = max(int(p["min"]), int(round(p["window_s"] * rate)))
+    if name == "movmean":
+        return f"movmean:{w}"
+    if name == "savgol":
+        w += 1 - w % 2  # odd
+        return f"savgol:{w}:{p['degree']}"
+    return f"polyfit:{p['degree']}:{w}"
+
+
+@dataclass(frozen=True)
+class ExperimentPlan:
+    """What an experiment run does (written to ``OUT/plan.json``)."""
+
+    quick: bool
+    data: Mapping[str, Any]
+    sensor: Mapping[str, Any]
+    main_rate: float
+    rates: tuple[float, ...]
+    sim_rate: float
+    trajectories: int
+    test_trajectories: int
+    preprocessing: Mapping[str, Mapping[str, str]]  # rate name -> preprocessing -> smoother
+    substeps: Mapping[str, int]  # rate name -> RK4 sub-steps per data step
+    models: Mapping[str, Mapping[str, Any]]
+    samples: int | None
+    batch_size: int
+    input_hold: str
+    horizon: float
+    reset_every: float
+    analysis_points: int
+    seeds: int
+    float32: bool
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self)))
+
+
+def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
+    """The plan from the preset's ``[data]``, ``[sensor]`` and ``[training]`` tables."""
+    from softpinn.symbolic.datatable import data_config
+    from softpinn.symbolic.sensor import sensor_config
+
+    sensor = sensor_config(spec)
+    recipe = spec.recipe
+    cfg = data_config(spec)
+    data = dict(spec.data)
+    quick = config.quick
+    total = cfg.total_trajectories()
+    ntest = cfg.test_trajectories
+    rates = sorted(set(cfg.rates) | {sensor.rate_hz})
+    if quick:
+        total, ntest = QUICK_TRAJECTORIES, QUICK_TEST
+        data["duration"] = recipe.quick["duration"]
+        rates = sorted(set(recipe.quick.get("rates", (sensor.rate_hz,))) | {sensor.rate_hz})
+    data.pop("rates", None)
+    data.pop("rate", None)
+    data.update(trajectories=total, test_trajectories=ntest)
+    data.pop("train_trajectories", None)
+    data.pop("blackbox_train_trajectories", None)
+    sim_rate = max(rates)
+    max_step = recipe.max_step
+    substeps = {rate_name(r): (max(1, math.ceil(1.0 / r / max_step - 1e-9)) if max_step else
+                               int(recipe.substeps)) for r in rates}
+    models: dict[str, dict[str, Any]] = {}
+    for kind in KINDS:
+        budget = recipe.full.get(kind, {})
+        if quick:
+            m = dict(mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2),
+                     hidden=(32, 2), epochs=int(recipe.quick["epochs"]), lr=3e-3)
+        else:
+            m = dict(mass=recipe.network("lagrangian", "mass", (64, 3)),
+                     potential=recipe.network("lagrangian", "potential", (64, 3)),
+                     damping=recipe.network("lagrangian", "damping", (16, 2)),
+                     input=recipe.network("lagrangian", "input", (16, 2)),
+                     hidden=recipe.network("blackbox", "hidden", (128, 3)),
+                     epochs=int(budget.get("epochs", 100)), lr=float(budget.get("lr", 2e-3)))
+            for name in ("mass", "potential"):
+                m[name] = (max(m[name][0], MIN_WIDTH), m[name][1])
+        m["paper_epochs"] = recipe.network(kind, "epochs")
+        if config.epochs is not None:
+            m["epochs"] = config.epochs
+        models[kind] = m
+    return ExperimentPlan(
+        quick=quick, data=data, sensor=sensor.to_dict(), main_rate=sensor.rate_hz,
+        rates=tuple(rates), sim_rate=sim_rate, trajectories=total, test_trajectories=ntest,
+        preprocessing={rate_name(r): {p: smoother(p, r) for p in PREPROCESSING} for r in rates},
+        substeps=substeps, models=models,
+        samples=None if quick else cfg.physics_samples, batch_size=recipe.batch_size,
+        input_hold=recipe.input_hold, horizon=float(recipe.prediction_horizon),
+        reset_every=RESET_EVERY, analysis_points=config.analysis_points or (30 if quick else 200),
+        seeds=config.seeds, float32=config.float32,
+    )
+
+
+# ---------------------------------------------------------------------------------- pipeline
+
+
+def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
+                   progress=None, force: bool = False, machine: str = ""):
+    """Run the experiment end to end into ``out_dir`` (see the module docstring); returns
+    ``(out, report, plan, results, seconds)``. ``machine`` describes the computer in the
+    report."""
+    from softpinn.symbolic.spec import load_spec
+
+    from ..report.experiment import write_experiment_report
+
+    out = outputs.claim(out_dir, "reproduce", force=force)
+    t_start = time.perf_counter()
+    spec = load_spec(config.task)
+    plan = make_experiment_plan(spec, config)
+    write_json(out / "plan.json", plan.to_dict())
+    stages = Stages(out, log)
+    sim = stages.run("data", {"data": plan.data, "rate": plan.sim_rate},
+                     lambda d: stage_simulate(spec, plan, d))
+    results: dict[str, Any] = {"data": sim, "rates": {}}
+    for rate in plan.rates:
+        rn = rate_name(rate)
+        rec = stages.run(f"record/{rn}", {"data": plan.data, "sensor": plan.sensor,
+                                          "rate": rate},
+                         lambda d, r=rate: stage_record(spec, plan, r, sim, d))
+        per: dict[str, Any] = {"record": rec, "preprocessing": {}}
+        for prep, smooth in plan.preprocessing[rn].items():
+            imp_settings = {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data,
+                            "smooth": smooth, "test": plan.test_trajectories}
+            imp = stages.run(f"import/{rn}/{prep}", imp_settings,
+                             lambda d, s=smooth, r=rec: stage_import(spec, plan, r, s, d))
+            entry: dict[str, Any] = {"import": imp, "models": {}}
+            for kind in KINDS:
+                settings = {"import": imp_settings, "model": plan.models[kind],
+                            "samples": plan.samples, "batch": plan.batch_size,
+                            "substeps": plan.substeps[rn], "hold": plan.input_hold,
+                            "seeds": plan.seeds, "float32": plan.float32}
+                tr = stages.run(f"train/{rn}/{prep}/{kind}", settings,
+                                lambda d, k=kind, r=rate, i=imp: stage_train(
+                                    spec, plan, k, r, i, d, progress))
+                pr = stages.run(f"predict/{rn}/{prep}/{kind}",
+                                {"train": settings, "horizon": plan.horizon,
+                                 "reset_every": plan.reset_every},
+                                lambda d, k=kind, r=rate, i=imp, t=tr, c=rec: stage_predict(
+                                    plan, k, r, i, c, t, d))
+                model = {"train": tr, "predict": pr}
+                if kind == "lagrangian":
+                    model["bending"] = stages.run(
+                        f"bending/{rn}/{prep}", {"train": settings,
+                                                 "points": plan.analysis_points},
+                        lambda d, i=imp, t=tr: stage_bending(spec, plan, i, t))
+                entry["models"][kind] = model
+                e = pr["prediction_error_truth"]
+                log(f"{rn}/{prep}/{kind}: prediction error against the true arm "
+                    f"{_fmt(e['mean'])} over {pr['prediction_error']['horizon_s']:g} s")
+            per["preprocessing"][prep] = entry
+        results["rates"][rn] = per
+    seconds = sum(stages.seconds.values()) + (
+        time.perf_counter() - t_start - sum(v for k, v in stages.seconds.items()
+                                            if k in stages.ran))
+    results["stage_seconds"] = dict(stages.seconds)
+    report = write_experiment_report(spec, plan, results, out, seconds=seconds, machine=machine)
+    write_json(out / "results.json", {"task": "experiment", "quick": plan.quick,
+                                      "seconds": seconds, "machine": machine,
+                                      "results": results})
+    outputs.record(out, outputs.written_files(out))
+    log(f"report: {report}")
+    return out, report, plan, results, seconds
+
+
+def _fmt(x) -> str:
+    return "diverged" if x is None else f"{x:.3g}"
