@@ -34,7 +34,7 @@ def local_ray():
     """One local Ray instance with 2 CPUs for the module (starting Ray takes seconds)."""
     import ray
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
              logging_level="ERROR")
     yield ray
     ray.shutdown()
@@ -118,6 +118,8 @@ def test_trials_of_a_grid_random_draws_and_seeds():
     (["--grid", "lr=1e-3", "--lr", "1e-2"], "--lr is fixed for every trial and swept"),
     (["--grid", "lr=1e-3", "--samples", "3"], "samples: random draws need a random range"),
     (["--grid", "seed=1,2", "--seeds", "2"], "seed: give seeds=K (--seeds K) or sweep seed"),
+    (["--grid", "lr=1e-3", "--address", "127.0.0.1:1"],
+     "--address: nothing answers at 127.0.0.1:1"),
     (["--grid", "lr=1e-3", "--scheduler", "asha", "--grace-period", "9"],
      "--grace-period: 9 is more than the epochs (5)"),
 ])

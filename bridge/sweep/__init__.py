@@ -23,6 +23,7 @@ import contextlib
 import io
 import logging
 import math
+import os
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
@@ -88,6 +89,20 @@ def _check(scheduler, metric, cpus_per_trial, gpus_per_trial, max_concurrent, gr
         raise UserError(f"reduction_factor: expected a number > 1, got {reduction_factor!r}")
 
 
+def _check_reachable(address: str) -> None:
+    """A ``HOST:PORT`` nobody answers at is one line now, not Ray's minutes of retries."""
+    import socket
+
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if address == "auto" or not sep or not port.isdigit():
+        return  # 'auto' (the cluster this node belongs to) and the like: Ray decides
+    try:
+        socket.create_connection((host, int(port)), timeout=10).close()
+    except OSError as exc:
+        raise UserError(f"address: nothing answers at {address} ({exc.strerror or exc}); is "
+                        "'ray start --head' running there, on that port?") from None
+
+
 def _trial_dirname(trial) -> str:
     return trial.config["trial"]
 
@@ -120,9 +135,10 @@ def sweep(
     ``space``: setting -> a list of values (a grid) or a random range (``"log:1e-4:1e-2"``, a
     :class:`Random`); ``samples`` draws of the random settings, each with every combination of
     the grid, each with ``seeds`` seeds (one trial each; ``base_config.seeds`` must be 1).
-    ``address``: a Ray cluster (``"auto"``, ``"HOST:PORT"``, ``"ray://HOST:10001"``); None
-    starts a local Ray instance (unless this process is connected to one already) and stops it
-    after. On a cluster ``out`` must be a folder every node sees at the same path.
+    ``address``: a Ray cluster (``"auto"``: the one this node belongs to, ``"HOST:PORT"``,
+    ``"ray://HOST:10001"``); None starts a new local Ray instance (unless this process is
+    connected to one already) and stops it after. On a cluster ``out`` must be a folder every
+    node sees at the same path.
     ``scheduler``: "asha" (asynchronous successive halving on ``metric`` at every evaluation:
     from ``grace_period`` epochs on (default a tenth of the most epochs), at rungs
     ``grace_period * reduction_factor**k``, a trial whose loss is not among the best
@@ -148,6 +164,8 @@ def sweep(
     if scheduler == "asha" and grace_period is not None and grace_period > most:
         raise UserError(f"grace_period: {grace_period} is more than the epochs ({most})")
     ray, tune = _import_ray()
+    if address is not None:
+        _check_reachable(address)
     from softpinn.learn.data import Dataset, load_dataset
 
     mc = base_config.model
@@ -172,13 +190,18 @@ def sweep(
     started = False
     if not ray.is_initialized():
         try:
-            ray.init(address=address, num_cpus=num_cpus, include_dashboard=False,
+            # "local": a new instance, even where 'ray start' runs one (--address auto joins it)
+            ray.init(address=address or "local", num_cpus=num_cpus, include_dashboard=False,
                      log_to_driver=verbose > 0,
                      logging_level="INFO" if verbose > 0 else "ERROR")
         except (ConnectionError, ValueError, RuntimeError) as exc:
             where = f"the Ray cluster at {address}" if address else "a local Ray instance"
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise UserError(f"address: cannot start or reach {where}: {first}") from None
+            hint = ""
+            if address not in (None, "auto") and "RAY_AUTH_MODE" not in os.environ:
+                hint = ("; a cluster with token authentication (Ray's default) needs "
+                        "RAY_AUTH_MODE=token and its token (see docs/sweep.md)")
+            raise UserError(f"address: cannot start or reach {where}: {first}{hint}") from None
         started = True
     if progress is not None:
         progress({"event": "start", "trial": None, "epoch": None, "best_test_loss": None,
