@@ -59,3 +59,23 @@ def test_units_and_finite_points():
     assert coordinate_unit("q1", "mass-spring-damper") == "m"
     x, y, e, lost = finite_points([10, 50, 100], [1e-3, np.inf, 2e-3], [1e-4, np.nan, np.inf])
     assert x.tolist() == [10, 100] and lost.tolist() == [50] and e.tolist() == [1e-4, 0.0]
+
+
+def test_error_against_horizon_with_diverged_trajectories(tmp_path):
+    from softpinn.bridge.report.rollouts import horizon_figure
+
+    t = np.linspace(0.0, 2.0, 100)
+    good = 1e-4 * np.exp(t)[None, :] * np.array([[1.0], [2.0], [3.0]])
+    bad = good.copy()
+    bad[1, 60:] = np.inf
+    path = horizon_figure({"lagrangian": (t, good), "hamiltonian": (t, bad)}, title="h",
+                          path=tmp_path / "h.png")
+    assert path.is_file() and path.stat().st_size > 10_000
+
+
+def test_rollout_figure_draws_the_inputs(tmp_path):
+    t, q = _truth(n=2)
+    u = np.stack([np.cos(t), np.sin(t)], axis=1)
+    path = rollout_figure(t, q, {"lagrangian": q}, names=["theta1", "dL1"], units=["rad", "m"],
+                          title="u", path=tmp_path / "u.png", u=u)
+    assert path.is_file()

@@ -48,8 +48,9 @@ def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
 
 def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray], *,
                    names: Sequence[str], units: Sequence[str], title: str, path: str | Path,
-                   dpi: int = 150) -> Path:
-    """Write the figure: a panel per coordinate and the error panel (see the module)."""
+                   u: np.ndarray | None = None, dpi: int = 150) -> Path:
+    """Write the figure: a panel per coordinate, the error panel and, given ``u`` (T, m), the
+    inputs the models were driven by (see the module)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -60,10 +61,22 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     n = q_true.shape[1]
     cols = min(3, n)
     rows = -(-n // cols)
-    fig = plt.figure(figsize=(3.6 * cols + 0.6, 2.3 * rows + 2.6), layout="constrained")
-    grid = fig.add_gridspec(rows + 1, cols, height_ratios=[1.0] * rows + [1.1])
+    inputs = u is not None and np.asarray(u).ndim == 2 and np.asarray(u).shape[1] > 0
+    extra = 2 if inputs else 1
+    fig = plt.figure(figsize=(3.6 * cols + 0.6, 2.3 * rows + 2.6 + 1.6 * (extra - 1)),
+                     layout="constrained")
+    grid = fig.add_gridspec(rows + extra, cols, height_ratios=[1.0] * rows + [1.1] * extra)
     axes = [fig.add_subplot(grid[i // cols, i % cols]) for i in range(n)]
     err_ax = fig.add_subplot(grid[rows, :])
+    if inputs:
+        u = np.asarray(u, float)
+        u_ax = fig.add_subplot(grid[rows + 1, :], sharex=err_ax)
+        for j in range(u.shape[1]):
+            u_ax.plot(t[: len(u)], u[: len(t), j], lw=1.0, label=f"u{j + 1}")
+        u_ax.set_ylabel("inputs u")
+        u_ax.set_xlabel("t [s]")
+        u_ax.grid(alpha=0.3)
+        u_ax.legend(fontsize=7, ncols=min(u.shape[1], 6), loc="upper right")
     cut = {k: diverged_at(qp, q_true) for k, qp in predictions.items()}
     for i, ax in enumerate(axes):
         ax.plot(t, q_true[:, i], "k-", lw=1.6, label="truth")
@@ -102,6 +115,54 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     err_ax.set_xlabel("t [s]")
     err_ax.set_xlim(t[0], t[-1])
     err_ax.grid(alpha=0.3, which="both")
+    path = Path(path)
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title: str,
+                   path: str | Path, dpi: int = 150) -> Path:
+    """How far ahead a model can be trusted: for each model the error max over q of
+    |q - q_hat| against the time since the start, over every test trajectory (``curves[kind] =
+    (t (T,), errors (K, T))``): the median as a line, the 10-90 % band shaded, log scale. A
+    trajectory counts as diverged (inf) from where it left; the band then reaches the top."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4), layout="constrained")
+    finite_max = 1e-16
+    for _, err in curves.values():
+        err = np.asarray(err, float)
+        if err.size:
+            ok = err[np.isfinite(err)]
+            finite_max = max(finite_max, float(ok.max()) if ok.size else finite_max)
+    top = finite_max * 10
+    notes: list[str] = []
+    for k, (t, err) in curves.items():
+        err = np.clip(np.asarray(err, float)[:, 1:], 1e-16, top)
+        t = np.asarray(t, float)[1:]
+        if not err.size:
+            continue
+        lo, mid, hi = np.percentile(err, [10, 50, 90], axis=0)
+        color = COLORS.get(k, "C2")
+        ax.semilogy(t, mid, STYLES.get(k, "-"), color=color, lw=1.5,
+                    label=f"{NETWORK.get(k, k)} (median of {len(err)})")
+        ax.fill_between(t, lo, hi, color=color, alpha=0.18, lw=0)
+        gone = int(np.sum(np.asarray(curves[k][1], float)[:, -1] >= top))
+        if gone:
+            notes.append(f"{NETWORK.get(k, k)}: {gone} of {len(err)} diverged (drawn at the top)")
+    if notes:
+        ax.text(0.01, 0.97, "; ".join(notes), transform=ax.transAxes, va="top", fontsize=8,
+                color="C3", bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+    ax.set_ylim(top=top * 3)
+    ax.set_xlabel("time since the start of the rollout [s]")
+    ax.set_ylabel("max over q of |q − q̂|")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=8, loc="lower right")
     path = Path(path)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

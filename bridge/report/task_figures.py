@@ -14,7 +14,7 @@ from softpinn.symbolic.shape import PCC_KINDS
 from ..errors import UserError
 from .paper import load_paper_tables
 from .rollouts import NETWORK as _NETWORK
-from .rollouts import coordinate_unit, finite_points, rollout_figure
+from .rollouts import coordinate_unit, finite_points, horizon_figure, rollout_figure
 from .shape import shape_animation, shape_figure
 from .tables import format_mean_std
 
@@ -71,11 +71,22 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
         path = rollout_figure(
             first[f"{prefix}_t"], first[f"{prefix}_q_true"],
             {k: r[f"{prefix}_q_pred"] for k, r in have.items()},
+            u=first.get(f"{prefix}_u"),
             names=names, units=units, path=fig_dir / f"rollout_{prefix}_{vname}.png",
             title=f"{plan.task} {vname}: {what}, a test trajectory from its measured "
                   "initial state",
         )
         lines += [f"![{what}]({_rel(path, out)})", ""]
+    spread = {k: (r["horizon_t"], r["horizon_error"]) for k, r in rolls.items()
+              if "horizon_error" in r}
+    if spread:
+        count = len(next(iter(spread.values()))[1])
+        path = horizon_figure(spread, path=fig_dir / f"horizon_{vname}.png",
+                              title=f"{plan.task} {vname}: error against the horizon, {count} "
+                                    "test trajectories (median, 10-90 % band)")
+        lines += ["How far ahead each model can be trusted: its error against the time since "
+                  "the start of the rollout, over every test trajectory.", "",
+                  f"![error against horizon]({_rel(path, out)})", ""]
     main = {k: r for k, r in rolls.items() if "main_t" in r}
     if spec.kind in PCC_KINDS and main:
         first = next(iter(main.values()))

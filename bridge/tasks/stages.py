@@ -282,6 +282,12 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     keep = r["t"] - r["t"][0] <= horizon * (1 + 1e-12) + 1e-12
     arrays.update({"main_t": r["t"][keep], "main_q_true": r["q_true"][keep],
                    "main_q_pred": r["q_pred"][keep]})
+    # the inputs of the drawn trajectory, and every test trajectory's error against the time
+    # since its start (the report's error-against-horizon figure)
+    drawn = next(tr for tr in trajectories(data, test) if tr["id"] == r["id"])
+    arrays["long_u"] = drawn["u"][: len(r["t"])]
+    arrays["main_u"] = arrays["long_u"][keep]
+    arrays.update(_horizon_errors(first["long"].rollouts))
     np.savez(folder / "rollouts.npz", **arrays)
 
     def stat(key, pick=lambda x: x):
@@ -355,6 +361,24 @@ def stage_modes(spec, kind: str, files: dict, trained: dict) -> dict:
     run = load_ensemble(trained["run"])[0]
     return modes(TrueModel(spec), run.model, data.q[keep].mean(axis=0),
                  data.u[keep].mean(axis=0) if spec.m else None)
+
+
+def _horizon_errors(rolls: list[dict]) -> dict[str, np.ndarray]:
+    """``horizon_t`` (T,), the time since each rollout's start on the shortest one's grid, and
+    ``horizon_error`` (K, T): max over q of |q - q_hat| per test trajectory (inf from where it
+    diverged)."""
+    size = min(len(r["t"]) for r in rolls)
+    with np.errstate(over="ignore", invalid="ignore"):
+        err = np.stack([np.max(np.abs(r["q_pred"][:size] - r["q_true"][:size]), axis=1)
+                        for r in rolls])
+    # a rollout that ran away (1000 times the truth's range from it) counts as diverged
+    for j, r in enumerate(rolls):
+        q = r["q_true"][:size]
+        scale = max(float(np.ptp(q)), float(np.max(np.abs(q))), 1e-9)
+        gone = np.flatnonzero(~(err[j] <= 1e3 * scale))
+        if gone.size:
+            err[j, gone[0]:] = np.inf
+    return {"horizon_t": rolls[0]["t"][:size] - rolls[0]["t"][0], "horizon_error": err}
 
 
 def _truncated_error(rollout: dict, horizon: float) -> float:
