@@ -332,14 +332,13 @@ def write_report(
 
     if plots:
         p = out / "scatter.png"
-        plot_entries_scatter(
-            result.true, result.learned,
-            {name: (None if name == "direct" else r) for name, r in result.results.items()},
-            matrices=mats, path=p,
-        )  # fmt: skip
+        plot_entries_scatter(result.true, result.learned, _scatter_rows(result), matrices=mats,
+                             path=p)
         paths[p.name] = p
         p = out / "P_entries.png"
-        plot_transform_entries(result.q, result.results, path=p)
+        spread = np.ptp(np.asarray(result.q, float), axis=0)
+        plot_transform_entries(result.q, result.results, path=p,
+                               coordinate=int(np.argmax(spread)) if len(result.q) > 1 else None)
         paths[p.name] = p
         for name, comp in (("forces.png", result.forces),
                            ("accelerations.png", result.accelerations)):
@@ -380,11 +379,12 @@ def write_report(
                 lines += [f"![{comp.frame} terms, true against learned]({name})", ""]
     if plots:
         lines += [
-            "## Entries: true vs (transformed) learned, one row per transform",
+            "## Entries: true against learned (the direct comparison where it applies) and "
+            "against the best transform's P(q) times learned",
             "",
             "![scatter](scatter.png)",
             "",
-            "## P(q) over the sampled q",
+            "## P(q) over the sampled q, along the coordinate that varies most",
             "",
             "![P entries](P_entries.png)",
             "",
@@ -393,6 +393,21 @@ def write_report(
     _write_text(report, "\n".join(lines))
     paths["report.md"] = report
     return paths
+
+
+def _scatter_rows(result) -> dict:
+    """The rows of the entries scatter: the direct comparison (None: learned as it is) where it
+    was made, and the transform with the smallest total residual (pointwise only if it is the
+    only one: it explains M exactly by construction)."""
+    rows = {"direct": None} if "direct" in result.results else {}
+    fits = {n: r for n, r in result.results.items() if n != "direct"}
+    others = {n: r for n, r in fits.items() if n != "pointwise"} or fits
+    if others:
+        key = lambda n: (others[n].residual_total if others[n].residual_total is not None  # noqa: E731
+                         and np.isfinite(others[n].residual_total) else np.inf)
+        best = min(others, key=key)
+        rows[best] = others[best]
+    return rows or {None: None}
 
 
 def _first_q(table, k):

@@ -20,7 +20,7 @@ from matplotlib.figure import Figure
 from ..analysis.transforms import as_stack
 from ..errors import UserError
 
-_TITLES = {"M": "M(q)", "M_inv": "M(q)^-1", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
+_TITLES = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
 
 
 def _save(fig: Figure, path: str | Path | None) -> Figure:
@@ -63,7 +63,7 @@ def plot_entries_scatter(
             raise UserError("result: expected at least one transform result")
     else:
         rows = [(getattr(result, "name", None), result)]
-    fig = Figure(figsize=(3.0 * len(keys), 3.0 * len(rows) + 0.4))
+    fig = Figure(figsize=(3.0 * len(keys), 3.0 * len(rows) + 0.5), layout="constrained")
     axes = fig.subplots(len(rows), len(keys), squeeze=False)
     for (name, res), row in zip(rows, axes, strict=True):
         for ax, k in zip(row, keys, strict=True):
@@ -83,7 +83,6 @@ def plot_entries_scatter(
             ax.set_xlabel("true")
             ax.set_ylabel("P · learned" if mapped else "learned")
     fig.suptitle(title or "true vs learned entries (dashed: identity)")
-    fig.tight_layout()
     return _save(fig, path)
 
 
@@ -116,7 +115,7 @@ def plot_transform_entries(
     else:
         order = np.argsort(q[:, coordinate], kind="stable")
         x, xlabel = q[order, coordinate], f"q[{coordinate}]"
-    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.6))
+    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.7), layout="constrained")
     axes = fig.subplots(n, n, squeeze=False, sharex=True)
     for name, r in results.items():
         P = r.P[order]
@@ -124,7 +123,8 @@ def plot_transform_entries(
         for i in range(n):
             for j in range(n):
                 ax = axes[i, j]
-                (line,) = ax.plot(x, P[:, i, j], "-", lw=1.0, marker=".", ms=3, label=name)
+                # points, not lines: the other coordinates vary between neighbouring samples
+                (line,) = ax.plot(x, P[:, i, j], "none", marker=".", ms=4, label=name)
                 if train is not None:
                     held = ~np.asarray(train)[order]
                     ax.plot(x[held], P[held, i, j], "o", mfc="none", color=line.get_color())
@@ -134,7 +134,6 @@ def plot_transform_entries(
         axes[-1, i].set_xlabel(xlabel)
     axes[0, 0].legend(fontsize="x-small")
     fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
-    fig.tight_layout()
     return _save(fig, path)
 
 
