@@ -48,7 +48,7 @@ def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
 
 def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray], *,
                    names: Sequence[str], units: Sequence[str], title: str, path: str | Path,
-                   u: np.ndarray | None = None, dpi: int = 150) -> Path:
+                   u: np.ndarray | None = None, dpi: int = 300) -> Path:
     """Write the figure: a panel per coordinate, the error panel and, given ``u`` (T, m), the
     inputs the models were driven by (see the module)."""
     import matplotlib
@@ -117,12 +117,13 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     err_ax.grid(alpha=0.3, which="both")
     path = Path(path)
     fig.savefig(path, dpi=dpi)
+    fig.savefig(path.with_suffix(".pdf"))  # vector, for print
     plt.close(fig)
     return path
 
 
 def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title: str,
-                   path: str | Path, dpi: int = 150) -> Path:
+                   path: str | Path, dpi: int = 300) -> Path:
     """How far ahead a model can be trusted: for each model the error max over q of
     |q - q_hat| against the time since the start, over every test trajectory (``curves[kind] =
     (t (T,), errors (K, T))``): the median as a line, the 10-90 % band shaded, log scale. A
@@ -165,6 +166,7 @@ def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title
     ax.legend(fontsize=8, loc="lower right")
     path = Path(path)
     fig.savefig(path, dpi=dpi)
+    fig.savefig(path.with_suffix(".pdf"))  # vector, for print
     plt.close(fig)
     return path
 

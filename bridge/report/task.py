@@ -107,6 +107,10 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
             stem = f"table_iii_{vname}_{kind}"
             write_table(table, out / "tables", stem)
             lines += [to_markdown(table), ""]
+            if "± inf" in to_markdown(table):
+                lines += ["`± inf`: the paper prints an infinite spread where at least one of "
+                          "its test rollouts diverged; ours reads the same way (a mean of inf "
+                          "is a diverged rollout of ours).", ""]
         lines += _floor_lines(models)
         lines += _modes_lines(models)
         lines += _variant_figures(spec, plan, vname, models, fig_dir, out,
