@@ -47,7 +47,7 @@ def test_two_processes_train_the_one_process_model(tmp_path):
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for i in (0, 1)]
     outs = [p.communicate(timeout=600) for p in procs]
-    for p, (out, err) in zip(procs, outs, strict=True):
+    for p, (_out, err) in zip(procs, outs, strict=True):
         assert p.returncode == 0, err[-3000:]
     # process 0 reports (Gloo's C++ prints its connection line to stdout)
     last = lambda out: [line for line in out.splitlines() if not line.startswith("[Gloo]")]
