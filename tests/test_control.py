@@ -226,6 +226,25 @@ def test_hamiltonian_state_is_momentum(specs, runs, tmp_path):
     assert resolve_run(tmp_path / "x") == (tmp_path / "x", "export")
 
 
+def test_black_box_is_rebuilt_in_mx(specs, runs, tmp_path):
+    """A black box's field comes back as MX from its weights (its SX Jacobian would be huge),
+    agrees with the exported SX field, and both solvers run with it."""
+    from softpinn.bridge.export import load_exported
+
+    tm = TrueModel(specs["forced"])
+    model = from_run(runs("blackbox"), tip_output(tm.spec), export_dir=tmp_path / "bb")
+    assert model.field.is_a("MXFunction") and model.info["field"].startswith("MX")
+    sx = load_exported(tmp_path / "bb")["field"]
+    x, u = np.array([0.3, -0.2, 0.1, 0.5]), np.array([0.7])
+    np.testing.assert_allclose(np.asarray(model.field(x, u)), np.asarray(sx(x, u)), atol=1e-12)
+    R = np.tile([0.2, 0.2], (5, 1))
+    for solver in ("sqp", "ipopt"):
+        mpc = MPC(model, MPCConfig(horizon=5, dt=0.05, solver=solver, codegen=solver == "sqp",
+                                   u_min=(-2.0,), u_max=(2.0,)))
+        u0, info = mpc.solve(np.zeros(2), np.zeros(2), R, np.zeros(1))
+        assert np.all(np.isfinite(u0)) and info["iterations"] >= 1, (solver, info)
+
+
 def _cli(capsys, *argv):
     status = cli.main(["control", *map(str, argv)])
     captured = capsys.readouterr()

@@ -28,7 +28,8 @@ __all__ = ["PredictionModel", "from_export", "from_run", "from_true", "linearise
 
 @dataclass
 class PredictionModel:
-    """``field`` (x, u) -> ẋ (an SX Function), ``to_state`` (q, q̇) -> x, ``output`` q -> y.
+    """``field`` (x, u) -> ẋ (an SX Function; MX for a black box rebuilt from its weights),
+    ``to_state`` (q, q̇) -> x, ``output`` q -> y.
 
     ``info``: where the model comes from (kind, run, export directory, seconds to export)."""
 
@@ -106,12 +107,54 @@ def from_export(directory, output: ca.Function, name: str | None = None) -> Pred
             p = np.asarray(M(q)) @ np.asarray(qd, float).ravel()
             return np.concatenate([np.asarray(q, float).ravel(), p.ravel()])
 
+    field_fn = _sx(fns["field"])
+    rebuilt = _blackbox_mx(meta, field_fn) if meta["kind"] == "blackbox" else None
     info = {"source": "export", "kind": meta["kind"], "state_kind": meta["state_kind"],
             "export": str(directory), "run": meta.get("run", {}).get("path"),
             "seeds": meta.get("ensemble", {}).get("seeds"),
-            "data_spec": meta.get("training", {}).get("data_spec")}
-    return PredictionModel(name or meta["kind"], n, m, _sx(fns["field"]), to_state, output,
+            "data_spec": meta.get("training", {}).get("data_spec"),
+            "field": "MX from the run's weights" if rebuilt is not None else "SX"}
+    return PredictionModel(name or meta["kind"], n, m, rebuilt or field_fn, to_state, output,
                            info)
+
+
+def _blackbox_mx(meta: dict, field_sx: ca.Function) -> ca.Function | None:
+    """A black box's field rebuilt in MX from its run's weights (dense matrix products): its
+    Jacobian stays a few matrix products, where the SX copy (every weight a scalar
+    instruction) grows to millions of instructions for a 128 x 5 network. None when the run
+    is gone or changed since the export (its checksum), or the two copies disagree."""
+    import hashlib
+
+    members = [Path(p) for p in (meta.get("run") or {}).get("members") or []]
+    if not members or not all((p / "model.eqx").is_file() for p in members):
+        return None
+    h = hashlib.sha256()
+    for d in members:
+        for name in ("config.json", "model.eqx"):
+            h.update(f"{name}\0".encode())
+            h.update((d / name).read_bytes())
+    if h.hexdigest() != meta["run"].get("sha256"):
+        return None
+    from softpinn.learn import load_run
+
+    from ..export import model_params
+    from ..export.layers import mlp
+
+    n, m = int(meta["n"]), int(meta["m"])
+    x, u = ca.MX.sym("x", 2 * n), ca.MX.sym("u", m)
+    outs = [mlp(model_params(load_run(p).model)["mlp"], ca.vertcat(x, u)) for p in members]
+    total = outs[0]
+    for o in outs[1:]:
+        total = total + o
+    fn = ca.Function("field", [x, u], [total / len(outs) if len(outs) > 1 else total],
+                     ["x", "u"], ["xdot"])
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        xs, us = rng.uniform(-1, 1, 2 * n), rng.uniform(-1, 1, m)
+        a, b = np.asarray(fn(xs, us)), np.asarray(field_sx(xs, us))
+        if not np.allclose(a, b, rtol=1e-9, atol=1e-9):
+            return None
+    return fn
 
 
 def resolve_run(path) -> tuple[Path, str]:
