@@ -271,6 +271,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
         "casadi": _casadi_version(),
         "model": spec.name,
         "machine": machine(),
+        "load_average": _load(),
         "plant": {"integrator": "cvodes", "rtol": 1e-8, "atol": 1e-10,
                   "feedback": "the exact state (q, qd), no noise", "hold": "zero-order"},
         "output": {"what": "tip position" if spec.kind in ("spatial-pcc", "planar-pcc")
@@ -326,6 +327,15 @@ def _precheck_out(out: Path, force: bool) -> None:
     who = outputs.owner(out)
     if who is not None and who != "control" and not force:
         outputs.claim(out, "control", force=False)  # raises its one-line error
+
+
+def _load() -> list[float] | None:
+    """The 1, 5 and 15 minute load averages when the comparison ends: solve times on a busy
+    machine (load above its cores) are longer than on an idle one."""
+    try:
+        return [round(v, 2) for v in os.getloadavg()]
+    except OSError:  # pragma: no cover - a system without load averages
+        return None
 
 
 def _casadi_version() -> str:

@@ -30,8 +30,9 @@ def _save(fig: Figure, path: Path) -> None:
     tmp.replace(path)
 
 
-def _equal_3d(ax, arrays) -> None:
-    """The same scale on x, y and z (a horizontal circle stays flat), around the reference."""
+def _equal_3d(ax, arrays):
+    """The same scale on x, y and z (a horizontal circle stays flat), around the reference
+    (paths that wander more than twice its size away are cut); returns the box (lo, hi)."""
     pts = np.concatenate([a for a in arrays if len(a)])
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     ref = arrays[0]
@@ -45,6 +46,22 @@ def _equal_3d(ax, arrays) -> None:
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
+    return mid - half, mid + half
+
+
+def _panel_limits(ref, j, paths):
+    """y-limits of output component ``j``: the reference's range with a margin of half the
+    reference's largest extent, widened for paths within two extents of it (a run-away
+    controller is seen leaving, in the error panel, without flattening the others)."""
+    span = max(float(np.max(np.ptp(ref, axis=0))), 1e-3)
+    lo, hi = float(np.min(ref[:, j])), float(np.max(ref[:, j]))
+    low, high = lo - 0.5 * span, hi + 0.5 * span
+    for y in paths:
+        v = y[:, j][np.isfinite(y[:, j])]
+        if v.size:
+            low = min(low, max(float(v.min()), lo - 2 * span))
+            high = max(high, min(float(v.max()), hi + 2 * span))
+    return low, high
 
 
 def _colors(names):
@@ -74,13 +91,15 @@ def write_figures(folder, spec, refs: dict, traces: dict, result: dict) -> list[
         spatial = r_full.shape[1] == 3 and spec.kind == "spatial-pcc"
         if spatial:
             ax = fig.add_subplot(projection="3d")
+            lo, hi = _equal_3d(ax, [r_full] + [res["y"] for res in per.values()])
             ax.plot(*r_full.T, "k--", lw=1.5, label="reference")
             for name, res in per.items():
-                ax.plot(*res["y"].T, color=colors[name], lw=1.2, label=name)
+                y = np.array(res["y"], float)
+                y[np.any((y < lo) | (y > hi), axis=1)] = np.nan  # 3-D lines are not clipped
+                ax.plot(*y.T, color=colors[name], lw=1.2, label=name)
             ax.set_xlabel(f"{comps[0]} [{unit}]")
             ax.set_ylabel(f"{comps[1]} [{unit}]")
             ax.set_zlabel(f"{comps[2]} [{unit}]", labelpad=12)
-            _equal_3d(ax, [r_full] + [res["y"] for res in per.values()])
             ax.invert_zaxis()  # a hanging arm: gravity along +z, drawn downwards
         else:
             ax = fig.add_subplot()
@@ -114,6 +133,7 @@ def write_figures(folder, spec, refs: dict, traces: dict, result: dict) -> list[
                 axes[j].plot(np.arange(len(res["y"])) * dt, res["y"][:, j], color=colors[name],
                              lw=1.1, label=name)
             axes[j].set_ylabel(f"{comps[j]} [{unit}]")
+            axes[j].set_ylim(*_panel_limits(r_full, j, [res["y"] for res in per.values()]))
         axes[0].legend(fontsize=8, ncol=2)
         for name, res in per.items():
             e = np.linalg.norm(res["y"] - res["r"], axis=1)

@@ -40,8 +40,11 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         f"{cfg['weight_du']:g}; input bounds: {bounds}.",
         "",
         f"Output: {result['output']['what']} ({', '.join(result['output']['components'])}, "
-        f"{unit}). Machine: {result['machine']}. CasADi {result['casadi']}, softpinn "
-        f"{result['softpinn']}. Wall time {result['seconds']:.1f} s.",
+        f"{unit}). Machine: {result['machine']}"
+        + (f", load average {result['load_average'][1]:g} over the last 5 minutes (solve times "
+           "grow when it exceeds the cores)" if result.get("load_average") else "")
+        + f". CasADi {result['casadi']}, softpinn {result['softpinn']}. Wall time "
+        f"{result['seconds']:.1f} s.",
         "",
         "## Controllers",
         "",
