@@ -163,10 +163,13 @@ def test_a_stiff_model_gets_more_substeps(specs):
     assert MPC(model, cfg).substeps == 1
 
 
-def test_circle_on_a_spatial_arm():
-    """task 4 with the true model: the tip follows a horizontal circle to a tenth of a mm."""
-    result = compare("task4", [], None, references=("circle",), duration=0.4,
+def test_circle_and_step_on_a_spatial_arm():
+    """task 4 with the true model: the tip follows a horizontal circle to a tenth of a mm and
+    settles on a step target (the reference holds it past the end: no step is anticipated)."""
+    result = compare("task4", [], None, references=("circle", "step"), duration=0.4,
                      config=MPCConfig(horizon=10), include_linear=False)
+    step = result["results"]["step"]["true"]
+    assert step["error_max"] > 1e-3 and step["error_final"] < 1e-6, step
     m = result["results"]["circle"]["true"]
     assert m["failures"] == 0 and m["steps"] == 20
     assert m["error_max"] < 1e-4, m

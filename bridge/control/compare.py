@@ -118,7 +118,9 @@ def _references(tm, output, names, *, dt, horizon, center, radius, period, hold,
         if name == "circle":
             R = circle_reference(output, center, radius, period, times)
         else:
-            R = step_reference(output, targets, hold, times)
+            # past the end the last target holds: the preview does not anticipate a step that
+            # never comes
+            R = step_reference(output, targets, hold, np.minimum(times, steps * dt))
         info.update(duration=steps * dt, steps=steps, q0=q0, u0=u0)
         refs[name] = {"R": R, "steps": steps, "x0": np.concatenate([q0, np.zeros(tm.n)]),
                       "u0": u0, "info": info}
