@@ -178,9 +178,10 @@ def cmd_models(args) -> int:
     if args.json:
         print(dumps({"models": rows}, what="models"))
         return 0
-    print(f"{'name':<8} {'kind':<20} {'n':>2} {'m':>2}  description")
+    w = max(8, *(len(r["name"]) for r in rows))
+    print(f"{'name':<{w}} {'kind':<20} {'n':>2} {'m':>2}  description")
     for r in rows:
-        print(f"{r['name']:<8} {r['kind']:<20} {r['n']:>2} {r['m']:>2}  {r['description']}")
+        print(f"{r['name']:<{w}} {r['kind']:<20} {r['n']:>2} {r['m']:>2}  {r['description']}")
     return 0
 
 
