@@ -21,6 +21,19 @@ from .errors import UserError
 RAY_MISSING = "simulate --ray needs Ray: pip install 'softpinn[ray]'"
 
 
+def ray_init(ray, **kwargs):
+    """``ray.init(**kwargs)`` without JAX's warning that the process forked: Ray starts its
+    services with subprocess (fork, then exec at once), which cannot deadlock on JAX's threads;
+    the warning would only alarm the user (and fails a test run that turns warnings into
+    errors)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called",
+                                category=RuntimeWarning)
+        return ray.init(**kwargs)
+
+
 def _chunk(spec, x0, signals, config, compile, cache):
     """One Ray task: the model's functions on this worker, then the trajectories."""
     from .functions import functions
@@ -54,7 +67,7 @@ def ray_simulator(spec, *, address: str | None = None, chunks: int | None = None
         started = False
         if not ray.is_initialized():
             try:
-                ray.init(address=None if address in (None, "local") else address,
+                ray_init(ray, address=None if address in (None, "local") else address,
                          num_cpus=num_cpus if address in (None, "local") else None,
                          include_dashboard=False, log_to_driver=False,
                          logging_level="ERROR")

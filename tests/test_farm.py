@@ -10,13 +10,13 @@ import ray
 from softpinn.bridge.cli import main
 from softpinn.symbolic.datasets import make_dataset
 from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.farm import ray_simulator
+from softpinn.symbolic.farm import ray_init, ray_simulator
 from softpinn.symbolic.spec import load_spec
 
 
 @pytest.fixture(scope="module")
 def local_ray():
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
+    ray_init(ray, num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level="ERROR")
     yield
     ray.shutdown()
 

@@ -19,6 +19,7 @@ from softpinn.bridge.errors import UserError
 from softpinn.bridge.sweep import RAY_MISSING, Random, make_trials, parse_space, sweep
 from softpinn.learn import load_run
 from softpinn.learn.config import TrainConfig
+from softpinn.symbolic.farm import ray_init
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,7 +35,7 @@ def local_ray():
     """One local Ray instance with 2 CPUs for the module (starting Ray takes seconds)."""
     import ray
 
-    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
+    ray_init(ray, address="local", num_cpus=2, include_dashboard=False, log_to_driver=False,
              logging_level="ERROR")
     yield ray
     ray.shutdown()
@@ -145,13 +146,18 @@ def test_four_trial_sweep_with_asha(local_ray, capsys, data, tmp_path):
     """lr 1e-2 against a hopeless 1e-7, batch 32 and 64; the hopeless trials come last in the
     grid, so with 2 trials at a time a good one has reached every rung before they start: ASHA
     stops both at their first rung. Every trial is a run directory; the best one is linked."""
+    import signal
+
     out = tmp_path / "sweep"
+    sigint = signal.getsignal(signal.SIGINT)
     status = main(["sweep", str(data), "--model", "blackbox", "--out", str(out),
                    "--grid", "lr=1e-2,1e-7", "--grid", "batch-size=32,64", "--epochs", "5",
                    "--hidden", "16", "2", "--test-trajectories", "4", "--checkpoint-every",
                    "1000", "--grace-period", "1", "--quiet", "--json"])
     captured = capsys.readouterr()
     assert status == 0, captured.err
+    # Tune installs a SIGINT handler of its own; Ctrl-C after the sweep is the caller's again
+    assert signal.getsignal(signal.SIGINT) is sigint
     printed = json.loads(captured.out)
     rows = printed["results"]
     assert len(rows) == 4 and printed["trials"] == 4

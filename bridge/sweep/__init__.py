@@ -25,10 +25,12 @@ import logging
 import math
 import os
 import shutil
+import signal
 from dataclasses import dataclass
 from pathlib import Path
 
 from softpinn.learn.config import TrainConfig
+from softpinn.symbolic.farm import ray_init
 
 from .. import outputs
 from ..errors import UserError
@@ -191,7 +193,7 @@ def sweep(
     if not ray.is_initialized():
         try:
             # "local": a new instance, even where 'ray start' runs one (--address auto joins it)
-            ray.init(address=address or "local", num_cpus=num_cpus, include_dashboard=False,
+            ray_init(ray, address=address or "local", num_cpus=num_cpus, include_dashboard=False,
                      log_to_driver=verbose > 0,
                      logging_level="INFO" if verbose > 0 else "ERROR")
         except (ConnectionError, ValueError, RuntimeError) as exc:
@@ -206,6 +208,7 @@ def sweep(
     if progress is not None:
         progress({"event": "start", "trial": None, "epoch": None, "best_test_loss": None,
                   "finished": 0, "total": len(trials)})
+    sigint = signal.getsignal(signal.SIGINT)  # Tune installs its own; put ours back after
     try:
         grid, finished = _tune(tune, trials, specs, data, root, scheduler=scheduler,
                                metric=metric, cpus=cpus_per_trial, gpus=gpus_per_trial,
@@ -213,6 +216,8 @@ def sweep(
                                reduction_factor=reduction_factor, verbose=verbose,
                                progress=progress)
     finally:
+        if signal.getsignal(signal.SIGINT) is not sigint:
+            signal.signal(signal.SIGINT, sigint)
         if started:
             ray.shutdown()
     result = _write_results(out, trials, grid, finished, data, base_config, space,
