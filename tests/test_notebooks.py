@@ -10,6 +10,7 @@ from conftest import QUICK_EPOCHS
 from nbclient import NotebookClient
 
 NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("task*.ipynb"))
+CONTROL = Path(__file__).parent.parent / "notebooks" / "control.ipynb"
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -18,9 +19,10 @@ def test_one_notebook_per_task():
     assert [p.stem for p in NOTEBOOKS] == ["task1", "task2", "task3", "task4", "task5"]
 
 
-@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
+@pytest.mark.parametrize("path", [*NOTEBOOKS, CONTROL], ids=lambda p: p.stem)
 def test_notebook_executes(path, quick_runs, monkeypatch):
-    quick_runs(path.stem)  # the notebook then finds every stage done and only reports
+    # the notebook then finds every stage done and only reports (control: task3's runs)
+    quick_runs("task3" if path == CONTROL else path.stem)
     monkeypatch.setenv("SOFTPINN_OUT", str(quick_runs.root))
     monkeypatch.setenv("SOFTPINN_QUICK", "1")
     monkeypatch.setenv("SOFTPINN_EPOCHS", str(QUICK_EPOCHS))

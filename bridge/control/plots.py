@@ -38,7 +38,7 @@ def _equal_3d(ax, arrays):
     ref = arrays[0]
     lo, hi = ref.min(axis=0), ref.max(axis=0)
     # the reference's box, widened to hold the other paths unless they wander far off
-    span = max(float(np.max(hi - lo)), 1e-3)
+    span = max(float(np.max(hi - lo)), _first_extent(arrays[1:2]), 1e-3)
     lo_all = np.maximum(pts.min(axis=0), lo - 2 * span)
     hi_all = np.minimum(pts.max(axis=0), hi + 2 * span)
     mid = 0.5 * (lo_all + hi_all)
@@ -49,11 +49,21 @@ def _equal_3d(ax, arrays):
     return mid - half, mid + half
 
 
+def _first_extent(paths) -> float:
+    """The largest extent of the first path (the true model's controller, the best case): a
+    step reference is constant over a short run, and the view must still hold the approach."""
+    if not len(paths) or not len(paths[0]):
+        return 0.0
+    y = np.asarray(paths[0], float)
+    y = y[np.all(np.isfinite(y), axis=1)]
+    return float(np.max(np.ptp(y, axis=0))) if len(y) else 0.0
+
+
 def _panel_limits(ref, j, paths):
     """y-limits of output component ``j``: the reference's range with a margin of half the
     reference's largest extent, widened for paths within two extents of it (a run-away
     controller is seen leaving, in the error panel, without flattening the others)."""
-    span = max(float(np.max(np.ptp(ref, axis=0))), 1e-3)
+    span = max(float(np.max(np.ptp(ref, axis=0))), _first_extent(paths), 1e-3)
     lo, hi = float(np.min(ref[:, j])), float(np.max(ref[:, j]))
     low, high = lo - 0.5 * span, hi + 0.5 * span
     for y in paths:
@@ -110,7 +120,14 @@ def write_figures(folder, spec, refs: dict, traces: dict, result: dict) -> list[
                             label=name)
                 ax.set_xlabel(f"{comps[0]} [{unit}]")
                 ax.set_ylabel(f"{comps[1]} [{unit}]")
-                ax.set_aspect("equal", adjustable="datalim")
+                # the reference and the paths near it in view, a run-away one cut at the edge
+                paths = [res["y"] for res in per.values()]
+                (x0, x1), (y0, y1) = (_panel_limits(r_full, j, paths) for j in (0, 1))
+                half = 0.5 * max(x1 - x0, y1 - y0)
+                cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
+                ax.set_xlim(cx - half, cx + half)
+                ax.set_ylim(cy - half, cy + half)
+                ax.set_aspect("equal", adjustable="box")
             else:
                 ax.plot(t_ref, r_full[:, 0], "k--", lw=1.5, label="reference")
                 for name, res in per.items():
