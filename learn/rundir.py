@@ -3,6 +3,7 @@ metrics, history and loss plot, and loading a finished run back (:func:`load_run
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -45,8 +46,22 @@ def mean_std(values) -> dict:
 def loss_plot(run_dir, histories, labels):
     from .plots import plot_loss_curves
 
-    plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=str(run_dir.name),
+    plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=_plot_title(run_dir),
                      record=True)
+
+
+def _plot_title(run_dir: Path) -> str:
+    """What a run's loss plot is of: the model kind, the data set and the member, from the
+    run's config.json (the folder's name alone was 'run' for every task stage)."""
+    try:
+        info = json.loads((Path(run_dir) / "config.json").read_text())
+        kind = info["model"]["kind"]
+        data = info.get("dataset", {})
+        name = data.get("name") or Path(str(data.get("path", ""))).stem or "data"
+    except (OSError, ValueError, KeyError, TypeError):
+        return f"{Path(run_dir).name}: loss (train solid, test dashed)"
+    seed = f", seed {info['seed']}" if "seed" in info else ""
+    return f"{kind} network on {name}{seed}: loss (train solid, test dashed)"
 
 
 
