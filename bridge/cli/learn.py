@@ -40,10 +40,19 @@ def _devices(text: str) -> int:
     return value
 
 
-def add_setting_flags(parser) -> None:
+def _split_flags(group) -> None:
+    group.add_argument("--test-trajectories", type=int, nargs="+", default=None, metavar="ID",
+                       help="trajectory ids held out for testing (default: 20%% drawn at random)")
+    group.add_argument("--test-count", type=int, default=None, metavar="K",
+                       help="hold out K trajectories drawn at random")
+
+
+def add_setting_flags(parser, *, skip=_CUSTOM, title=str, split_flags=_split_flags) -> None:
     """One flag per :class:`learn.config.TrainConfig` setting, in argument groups (budget,
-    optimizer, loss, split, ensemble), with the field's default, help and choices: the defaults
-    live in the config alone."""
+    optimizer, loss, split, ensemble, devices), with the field's default, help and choices: the
+    defaults live in the config alone. ``skip``: settings whose flags the caller spells itself;
+    ``title(group)``: the groups' titles; ``split_flags(group)`` adds the flags of the split
+    group that are not one field each (``softpinn sweep`` uses all three)."""
     import types
     import typing
 
@@ -51,9 +60,9 @@ def add_setting_flags(parser) -> None:
 
     hints = typing.get_type_hints(TrainConfig)
     for group in GROUPS:
-        g = parser.add_argument_group(group)
+        g = parser.add_argument_group(title(group))
         for f in TrainConfig.settings(group):
-            if f.name in _CUSTOM:
+            if f.name in skip:
                 continue
             hint = hints[f.name]
             if isinstance(hint, types.UnionType):
@@ -68,29 +77,12 @@ def add_setting_flags(parser) -> None:
                 kw["metavar"] = "N" if hint is int else "X"
             g.add_argument(f"--{f.name.replace('_', '-')}", **kw)
         if group == "split":
-            g.add_argument("--test-trajectories", type=int, nargs="+", default=None,
-                           metavar="ID", help="trajectory ids held out for testing "
-                           "(default: 20%% drawn at random)")
-            g.add_argument("--test-count", type=int, default=None, metavar="K",
-                           help="hold out K trajectories drawn at random")
+            split_flags(g)
 
 
-def register(subparsers) -> None:
-    p = subparsers.add_parser(
-        "train",
-        help="train a physics-inspired (or black-box) model on a dataset file",
-        description=(
-            "Train Lagrangian (eq. 6), Hamiltonian (eq. 7) or black-box networks with the "
-            "one-step Runge-Kutta loss (eqs. 8/9) or the acceleration loss (eq. 10), AdamW. "
-            "Writes RUN/config.json, model.eqx, checkpoint.eqx, history.csv, metrics.json, "
-            "loss.png (one seed-<s>/ folder per member of an ensemble)."
-        ),
-    )
-    p.add_argument("data", metavar="DATA.npz", help="dataset file")
-    p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
-    p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
-    add_setting_flags(p)
-    net = p.add_argument_group("network")
+def add_network_flags(parser, title: str = "network") -> None:
+    """The flags of the network (:class:`learn.models.ModelConfig`), defaults from its fields."""
+    net = parser.add_argument_group(title)
     net.add_argument("--width", type=int, default=None, help="width of every sub-network")
     net.add_argument("--depth", type=int, default=None,
                      help="hidden layers of every sub-network")
@@ -116,6 +108,24 @@ def register(subparsers) -> None:
     net.add_argument("--state", choices=("velocity", "momentum"), default=None,
                      help="state of a black-box model (default velocity)")
     net.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "train",
+        help="train a physics-inspired (or black-box) model on a dataset file",
+        description=(
+            "Train Lagrangian (eq. 6), Hamiltonian (eq. 7) or black-box networks with the "
+            "one-step Runge-Kutta loss (eqs. 8/9) or the acceleration loss (eq. 10), AdamW. "
+            "Writes RUN/config.json, model.eqx, checkpoint.eqx, history.csv, metrics.json, "
+            "loss.png (one seed-<s>/ folder per member of an ensemble)."
+        ),
+    )
+    p.add_argument("data", metavar="DATA.npz", help="dataset file")
+    p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
+    p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
+    add_setting_flags(p)
+    add_network_flags(p)
     hosts = p.add_argument_group("several processes (hosts)")
     hosts.add_argument("--coordinator", default=None, metavar="HOST:PORT",
                        help="address of process 0 when training on several processes (with "

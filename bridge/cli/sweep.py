@@ -12,68 +12,24 @@ import sys
 _OWN = ("seeds", "samples", "test_trajectories", "ensemble")
 
 
+def _split_flags(group) -> None:
+    group.add_argument("--train-samples", type=int, default=None, metavar="N",
+                       help="train on N randomly chosen pairs (train's --samples; default: all)")
+    group.add_argument("--test-trajectories", type=int, nargs="+", default=None, metavar="ID",
+                       help="trajectory ids held out for testing (default: 20%% drawn at "
+                       "random, the same for every trial)")
+    group.add_argument("--test-count", type=int, default=None, metavar="K",
+                       help="hold out K trajectories drawn at random")
+
+
 def _add_settings(parser) -> None:
-    """``softpinn train``'s setting flags (defaults and help from TrainConfig), less the ones
-    a sweep decides per trial (seeds) or names otherwise (--train-samples)."""
-    import types
-    import typing
+    """``softpinn train``'s setting and network flags (defaults and help from the configs),
+    less the ones a sweep decides per trial (seeds) or names otherwise (--train-samples)."""
+    from .learn import add_network_flags, add_setting_flags
 
-    from softpinn.learn.config import GROUPS, TrainConfig
-
-    from .learn import _devices
-
-    hints = typing.get_type_hints(TrainConfig)
-    for group in GROUPS:
-        g = parser.add_argument_group(f"{group} (fixed for every trial unless swept)")
-        for f in TrainConfig.settings(group):
-            if f.name in _OWN:
-                continue
-            hint = hints[f.name]
-            if isinstance(hint, types.UnionType):
-                hint = next(a for a in typing.get_args(hint) if a is not type(None))
-            kw = {"default": f.default, "help": f.metadata["help"].replace("%", "%%")}
-            if f.name == "devices":
-                kw.update(type=_devices, metavar="N|all")
-            elif f.metadata.get("choices"):
-                kw["choices"] = f.metadata["choices"]
-            else:
-                kw["type"] = hint
-                kw["metavar"] = "N" if hint is int else "X"
-            g.add_argument(f"--{f.name.replace('_', '-')}", **kw)
-        if group == "split":
-            g.add_argument("--train-samples", type=int, default=None, metavar="N",
-                           help="train on N randomly chosen pairs (train's --samples; "
-                           "default: all)")
-            g.add_argument("--test-trajectories", type=int, nargs="+", default=None,
-                           metavar="ID", help="trajectory ids held out for testing "
-                           "(default: 20%% drawn at random, the same for every trial)")
-            g.add_argument("--test-count", type=int, default=None, metavar="K",
-                           help="hold out K trajectories drawn at random")
-
-
-def _add_network(parser) -> None:
-    from .learn import NETS, _model_defaults
-
-    net = parser.add_argument_group("network (fixed for every trial)")
-    net.add_argument("--width", type=int, default=None, help="width of every sub-network")
-    net.add_argument("--depth", type=int, default=None, help="hidden layers of every sub-network")
-    for name in NETS:
-        net.add_argument(f"--{name}", type=int, nargs=2, metavar=("W", "D"), default=None,
-                         help=f"width and depth of the {name} network (default: the kind's)")
-    d = _model_defaults()
-    net.add_argument("--activation", default=d["activation"],
-                     help="activation of every sub-network (softplus, tanh, ...)")
-    net.add_argument("--damping-form", choices=("network", "constant", "none"),
-                     default=d["damping_form"], help="D(q): a network, a learned constant, or none")
-    net.add_argument("--input-form", choices=("network", "constant"), default=d["input_form"],
-                     help="A(q): a network or a learned constant")
-    net.add_argument("--eps", type=float, default=d["eps"], help="Cholesky diagonal shift of M")
-    net.add_argument("--mass-init", default=None, metavar="X|data",
-                     help="initial diagonal of M (Lagrangian) or M^-1 (Hamiltonian); 'data': "
-                     "from the data's rms(p)/rms(qd) per coordinate")
-    net.add_argument("--state", choices=("velocity", "momentum"), default=None,
-                     help="state of a black-box model (default velocity)")
-    net.add_argument("--float32", action="store_true", help="train in float32 (default float64)")
+    add_setting_flags(parser, skip=_OWN, split_flags=_split_flags,
+                      title=lambda g: f"{g} (fixed for every trial unless swept)")
+    add_network_flags(parser, "network (fixed for every trial)")
 
 
 def register(subparsers) -> None:
@@ -141,7 +97,6 @@ def register(subparsers) -> None:
     r.add_argument("--max-concurrent", type=int, default=None, metavar="N",
                    help="at most N trials at once (default: as many as the resources allow)")
     _add_settings(p)
-    _add_network(p)
     o = p.add_argument_group("output")
     o.add_argument("--force", action="store_true",
                    help="write into a folder that holds other things (removes nothing of "
