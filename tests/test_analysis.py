@@ -76,7 +76,7 @@ def test_table_v_alpha_from_the_true_model(task1, tmp_path):
     assert columns[:3] == ("q", "true M[1]", "true M[2]") and len(rows) == 2 * len(q)
     assert rows[1][columns.index("true G")] == pytest.approx(2.3)  # eq. 25 at q = [0.5, 0.5]
     report = paths["report.md"].read_text()
-    assert "alpha = 0.302" in report and "| alpha | success |" in report
+    assert "alpha = 0.302" in report and "| alpha | ok | recovered |" in report
     assert "First 3 of 20 q" in report and "![P entries](P_entries.png)" in report
     assert summary_numbers(result)["alpha"]["alpha"] == pytest.approx(0.302, abs=1e-12)
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +40,13 @@ def test_quick_pipeline_writes_report_tables_and_figures(task, quick_runs):
     assert "Time scales: eigenvalues" in text and "| true |" in text
     # residuals at each of the paper's configurations, then over the sampled ones
     assert "Relative residual per configuration" in text and "| sampled (" in text
+    # one way of writing residuals (percent), and a word for what each total means
+    summary = re.search(r"\| total \| match \|.*?\n\n", text, re.S).group(0)
+    rows = [r for r in summary.splitlines()[2:] if r.startswith("| ")]
+    assert rows and all(r.split(" | ")[5].endswith(" %") for r in rows)
+    words = {r.split(" | ")[6] for r in rows}
+    assert words <= {"recovered", "approximate", "not recovered", "undefined"}
+    assert "success" not in text
     assert "Force terms along" in text and "| A u − G − D q̇ |" in text
     assert "Acceleration terms" in text and "| M⁻¹(A u − G − D q̇) |" in text
     variants = result.results["variants"]

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.analysis.transforms import fit_joint, fit_smooth, fit_transform
 from softpinn.bridge.errors import UserError
 from softpinn.bridge.report.paper import load_paper_tables, table_iii_comparison
@@ -89,7 +90,7 @@ def test_matrix_table_layout_like_table_i():
     # row r: q_r, row r of M, D, G, A
     assert t.rows[1][0] == -0.2 and t.rows[1][1:4] == tuple(TASK4_ROW["M"][1])
     md = to_markdown(t, precision=3)
-    for text in ("| 1.200 | 1.728e-03 | -3.121e-05 | -1.957e-03 |", "| 0.093 |", "0.777"):
+    for text in ("| 1.200<br>-0.200<br>0.150 | 1.728e-03<br>", "<br>0.093 |", "0.777"):
         assert text in md
     tex = to_latex(t, precision=3, label="tab:one")
     assert "\\toprule" in tex and "\\bottomrule" in tex and "\\label{tab:one}" in tex
@@ -167,11 +168,32 @@ def test_summary_table_lists_each_transform():
     c = t.columns
     row = dict(zip(c, t.rows[1], strict=True))
     assert row["P ~ cI alpha"] == pytest.approx(results["alpha"].params["alpha"])
-    assert row["residual M"] == results["alpha"].residual["M"]
-    held = dict(zip(c, t.rows[3], strict=True))["held-out residual"]
-    assert held == max(results["smooth"].params["residual_heldout"].values())
+    assert row["residual M (%)"] == pytest.approx(100 * results["alpha"].residual["M"])
+    assert row["residual total (%)"] == pytest.approx(100 * results["alpha"].residual_total)
+    assert row["match"] == match_word(results["alpha"].residual_total)
+    held = dict(zip(c, t.rows[3], strict=True))["held-out residual (%)"]
+    assert held == pytest.approx(100 * max(results["smooth"].params["residual_heldout"].values()))
     md = to_markdown(t)
-    assert "| pointwise | success |" in md
+    assert "| pointwise | ok | recovered |" in md  # P = M M̂⁻¹ explains M exactly
+    assert "success" not in md
+
+
+def test_match_word_says_what_a_residual_means():
+    assert match_word(0.0) == match_word(0.03) == "recovered"
+    assert match_word(0.0301) == match_word(0.15) == "approximate"
+    assert match_word(3.86) == "not recovered"  # was printed as "success" beside 3.86
+    assert match_word(None) == match_word(float("nan")) == match_word(float("inf")) == "undefined"
+
+
+def test_block_tables_keep_each_q_on_one_markdown_row():
+    q = np.array([[1.5, 1.0], [0.3, 0.2]])
+    M = np.array([[[1.0, 2.0], [2.0, 5.0]], [[3.0, 0.5], [0.5, 4.0]]])
+    t = matrix_table(q, [("true", "M", M)])
+    md = to_markdown(t).splitlines()
+    body = md[2:]
+    assert len(body) == 2  # two q, no blank separator rows
+    assert body[0] == "| 1.500<br>1.000 | 1.000<br>2.000 | 2.000<br>5.000 |"
+    assert all(line.strip("| ") for line in body)
 
 
 def test_table_iii_comparison_puts_paper_numbers_in():

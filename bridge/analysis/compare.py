@@ -26,6 +26,7 @@ from ..report.plots import plot_entries_scatter, plot_forces, plot_transform_ent
 from ..report.tables import summary_table, to_markdown, transform_table, write_table
 from .forces import ForceComparison, compare_forces
 from .forces import markdown_lines as force_lines
+from .transform_result import Status, match_word
 from .transforms import (
     MATRICES,
     TRANSFORMS,
@@ -354,14 +355,20 @@ def write_report(
         f"`{result.learned_kind}`; N = {result.true.N} configurations, n = {result.true.n}, "
         f"m = {result.true.m}.",
         "",
-        "Relative residual of each matrix, `||P X^ - X||_F / ||X||_F` over all q; `c`: the "
-        "multiple of I nearest to P (`alpha = 1/c`, learned ~= alpha * true), `distance`: "
-        "`||P - cI||_F / ||P||_F`.",
+        "Relative residual of each matrix in percent, `||P X^ - X||_F / ||X||_F` over all q; "
+        "`fit`: whether the transform's least squares went well (`ok`, or why not); `match`: "
+        "what the total residual means (`recovered` <= 3 %, `approximate` <= 15 %, else `not "
+        "recovered`); `c`: the multiple of I nearest to P (`alpha = 1/c`, learned ~= alpha * "
+        "true), `distance`: `||P - cI||_F / ||P||_F`.",
         "",
         to_markdown(summary, precision=precision),
     ]
     for name, r in result.results.items():
-        lines += [f"## {name}", "", f"Status `{r.status}`: {r.message}", ""]
+        fit = "ok" if r.status == Status.SUCCESS else f"`{r.status}`"
+        total = ("undefined" if r.residual_total is None or not np.isfinite(r.residual_total)
+                 else f"{100 * r.residual_total:.2f} %")
+        lines += [f"## {name}", "", f"{r.message}. Fit {fit}; total residual {total}: "
+                  f"{match_word(r.residual_total)}.", ""]
         if name == "alpha":
             lines += [f"alpha = {r.params['alpha']:.6g}", ""]
         if name == "smooth":

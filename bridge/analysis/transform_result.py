@@ -23,6 +23,21 @@ from .matrices import (
 TRANSFORMS = ("pointwise", "joint", "alpha", "constant", "smooth", "direct")
 BASES = ("polynomial", "rbf")
 
+#: What a relative residual says about a learned matrix, in words: (upper bound, word).
+#: 3 % is the open-challenges issue's "recovered" mark (a learned model equal to the truth up to
+#: its training error); beyond 15 % the learned matrix is another matrix.
+MATCH_LEVELS = ((0.03, "recovered"), (0.15, "approximate"), (math.inf, "not recovered"))
+
+
+def match_word(residual: float | None) -> str:
+    """``"recovered"`` (residual ≤ 3 %), ``"approximate"`` (≤ 15 %), ``"not recovered"``, or
+    ``"undefined"`` (no finite residual): what a relative residual ‖P X̂ − X‖/‖X‖ means, so that
+    a table never reads "success" beside a residual of 386 %. The fit's own outcome (did the
+    least squares have full rank, ...) is :class:`Status`, a different question."""
+    if residual is None or not math.isfinite(float(residual)):
+        return "undefined"
+    return next(word for bound, word in MATCH_LEVELS if float(residual) <= bound)
+
 
 class Status(enum.StrEnum):
     """Outcome of a fit (like diffrax' ``RESULTS``): success or why the values are doubtful."""

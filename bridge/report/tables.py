@@ -220,31 +220,40 @@ def transform_table(
 
 
 def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
-    """One row per transform: status, relative residual of each matrix over all q, their
-    root mean square, the nearest multiple of I (scale c, alpha = 1/c, relative distance) and,
-    for ``smooth``, the held-out residual."""
+    """One row per transform: whether the fit itself went well (``ok``, or why not), what its
+    total residual means (:func:`bridge.analysis.transform_result.match_word`), the relative
+    residual of each matrix over all q and their root mean square, in percent, the nearest
+    multiple of I (scale c, alpha = 1/c, relative distance) and, for ``smooth``, the held-out
+    residual (percent)."""
+    from ..analysis.transform_result import Status, match_word
+
     order = ("M_inv", "M", "D", "A", "G")
     blocks: list[str] = []
     for r in results.values():
         blocks += [k for k in r.residual if k not in blocks]
     blocks.sort(key=lambda k: order.index(k) if k in order else len(order))
-    spans = [Span("", "transform"), Span("", "status")]
-    spans += [Span("residual", k, 1, f"${_LATEX_MATRIX.get(k, k)}$") for k in blocks]
+    spans = [Span("", "transform"), Span("", "fit"), Span("", "match")]
+    spans += [Span("residual", f"{k} (%)", 1, f"${_LATEX_MATRIX.get(k, k)}$ (\\%)") for k in blocks]
     spans += [
-        Span("residual", "total"),
+        Span("residual", "total (%)", 1, "total (\\%)"),
         Span("P ~ cI", "c"),
         Span("P ~ cI", "alpha", 1, "$\\alpha = 1/c$"),
         Span("P ~ cI", "distance"),
-        Span("held-out", "residual", 1, "residual (max)"),
+        Span("held-out", "residual (%)", 1, "residual (max, \\%)"),
     ]
+
+    def pct(x):
+        return None if x is None else 100.0 * float(x)
+
     rows = []
     for name, r in results.items():
         held = r.params.get("residual_heldout") if hasattr(r, "params") else None
         held_v = max(held.values()) if held else None
+        fit = "ok" if r.status == Status.SUCCESS else str(r.status)
         rows.append(
-            (name, str(r.status))
-            + tuple(r.residual.get(k) for k in blocks)
-            + (r.residual_total, r.scale_all, r.alpha, r.distance_all, held_v)
+            (name, fit, match_word(r.residual_total))
+            + tuple(pct(r.residual.get(k)) for k in blocks)
+            + (pct(r.residual_total), r.scale_all, r.alpha, r.distance_all, pct(held_v))
         )
     return Table(tuple(spans), tuple(rows), caption=caption)
 
@@ -254,7 +263,9 @@ def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
 
 
 def to_markdown(table: Table, *, precision: int = 3) -> str:
-    """GitHub Markdown; a blank row between q-blocks."""
+    """GitHub Markdown. A table of q-blocks (a matrix's rows at each q, Tables I, II) gets one
+    row per q, the block's rows stacked in each cell with ``<br>``, so that a q never spreads
+    over several rows of the table."""
 
     def cell(x):
         return format_number(x, precision).replace("|", "\\|")
@@ -263,10 +274,11 @@ def to_markdown(table: Table, *, precision: int = 3) -> str:
     rule = "|" + "|".join("---" for _ in table.columns) + "|"
     lines = [f"**{table.caption}**", ""] if table.caption else []
     lines += [head, rule]
-    for i, row in enumerate(table.rows):
-        if table.block_rows and i and i % table.block_rows == 0:
-            lines.append("| " + " | ".join("" for _ in row) + " |")
-        lines.append("| " + " | ".join(cell(x) for x in row) + " |")
+    k = table.block_rows or 1
+    for i in range(0, len(table.rows), k):
+        block = table.rows[i:i + k]
+        cells = ["<br>".join(cell(row[j]) for row in block) for j in range(len(block[0]))]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -7,12 +7,11 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from ..analysis.transform_result import match_word
 from ..errors import UserError
 from .paper import load_paper_tables
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
-#: A residual (percent of the true matrices' size) up to which learned matrices "match".
-GOOD_PERCENT = 5.0
 
 
 def _who(kind: str) -> str:
@@ -82,9 +81,14 @@ def verdict(plan, results: dict[str, Any]) -> list[str]:
                 continue
             name = min(fits, key=fits.get)
             pct = 100 * fits[name]
-            if pct <= GOOD_PERCENT:
+            word = match_word(fits[name])
+            if word == "recovered":
                 says.append(f"The {_who(k)}'s learned matrices{on} match the true ones up to the "
                             f"{name} transform P(q), within {pct:.2g} %.")
+            elif word == "approximate":
+                says.append(f"The {_who(k)}'s learned matrices{on} match the true ones only "
+                            f"approximately: the best transform ({name} P(q)) leaves "
+                            f"{pct:.3g} %.")
             else:
                 says.append(f"The {_who(k)}'s learned matrices{on} do not match the true ones: "
                             f"even the best transform ({name} P(q)) leaves {pct:.3g} %.")
