@@ -79,3 +79,30 @@ def test_rollout_figure_draws_the_inputs(tmp_path):
     path = rollout_figure(t, q, {"lagrangian": q}, names=["theta1", "dL1"], units=["rad", "m"],
                           title="u", path=tmp_path / "u.png", u=u)
     assert path.is_file()
+
+
+def test_rollout_figure_shades_every_test_trajectory_behind_the_one_drawn(tmp_path):
+    import matplotlib.pyplot as plt
+
+    t, q = _truth(n=2)
+    pred = q + 1e-3
+    errors = 1e-3 * np.array([[1.0], [2.0], [4.0]]) * np.ones((3, t.size))
+    errors[2, t.size // 2:] = np.inf  # one test trajectory diverged half way: no inf drawn
+    drawn = []
+    original = plt.Axes.fill_between
+
+    def spy(self, x, y1, y2, **kw):
+        drawn.append((np.asarray(x), np.asarray(y1), np.asarray(y2)))
+        return original(self, x, y1, y2, **kw)
+
+    plt.Axes.fill_between = spy
+    try:
+        path = rollout_figure(t, q, {"lagrangian": pred}, names=["theta1", "dL1"],
+                              units=["rad", "m"], title="band", path=tmp_path / "b.png",
+                              bands={"lagrangian": (t - t[0], errors)})
+    finally:
+        plt.Axes.fill_between = original
+    assert path.is_file() and path.with_suffix(".pdf").is_file()
+    (x, lo, hi), = drawn
+    assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)
+    assert lo[0] == pytest.approx(1.2e-3) and hi[0] == pytest.approx(3.6e-3)  # 10-90 % of 1, 2, 4

@@ -8,6 +8,7 @@ reaches a log axis (matplotlib's log axis fails on infinity: issue 15's task4 cr
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -48,9 +49,13 @@ def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
 
 def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray], *,
                    names: Sequence[str], units: Sequence[str], title: str, path: str | Path,
-                   u: np.ndarray | None = None, dpi: int = 300) -> Path:
+                   u: np.ndarray | None = None, dpi: int = 300,
+                   bands: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Path:
     """Write the figure: a panel per coordinate, the error panel and, given ``u`` (T, m), the
-    inputs the models were driven by (see the module)."""
+    inputs the models were driven by (see the module). ``bands``: per model ``(t (T,), errors
+    (K, T))`` of every test trajectory (times since each rollout's start): the error panel
+    shades their 10-90 % band behind the drawn trajectory's error, so the one trajectory
+    drawn is seen against all the others."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -94,10 +99,29 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
         if i // cols == rows - 1 or i + cols >= n:
             ax.set_xlabel("t [s]")
     handles, labels = axes[0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside upper right", ncols=len(labels), fontsize=8,
+    # below the figure: constrained layout does not stack an outside legend under the title
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8,
                frameon=False)
     fig.suptitle(title, fontsize=10, x=0.02, ha="left")
     notes = []
+    for k, (bt, berr) in (bands or {}).items():
+        bt, berr = np.asarray(bt, float), np.asarray(berr, float)
+        if berr.ndim != 2 or berr.shape[0] < 2 or bt.size < 2:
+            continue
+        keep = (bt > bt[0]) & (bt - bt[0] <= t[-1] - t[0] + 1e-12)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # all-inf columns (diverged)
+            lo, hi = (np.nanpercentile(np.where(np.isfinite(berr), berr, np.nan), p, axis=0)
+                      for p in (10, 90))
+        ok = keep & np.isfinite(lo) & np.isfinite(hi)
+        if ok.any():
+            err_ax.fill_between(t[0] + bt[ok] - bt[0], np.maximum(lo[ok], 1e-16),
+                                np.maximum(hi[ok], 1e-16), color=COLORS.get(k, "C2"),
+                                alpha=0.15, lw=0)
+    if bands:
+        count = max((np.asarray(b[1]).shape[0] for b in bands.values()), default=0)
+        err_ax.set_title(f"error of the trajectory drawn; shaded: 10-90 % of all {count} test "
+                         "trajectories", fontsize=8, loc="left")
     for k, qp in predictions.items():
         qp = np.asarray(qp, float)
         end = cut[k] if cut[k] is not None else len(t)

@@ -75,6 +75,11 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
             names=names, units=units, path=fig_dir / f"rollout_{prefix}_{vname}.png",
             title=f"{plan.task} {vname}: {what}, a test trajectory from its measured "
                   "initial state",
+            # every test trajectory's error, as a band behind the one drawn (the same step
+            # size as the long rollouts: not for the other step)
+            bands=None if prefix == "other" else {
+                k: (r["horizon_t"], r["horizon_error"]) for k, r in have.items()
+                if "horizon_error" in r},
         )
         lines += [f"![{what}]({_rel(path, out)})", ""]
     spread = {k: (r["horizon_t"], r["horizon_error"]) for k, r in rolls.items()
