@@ -169,3 +169,29 @@ def test_task4_scale_recovers_a_known_P():
     smooth = result.results["smooth"]
     assert max(smooth.params["residual_heldout"].values()) < 1e-10
     assert result.results["constant"].residual_total > 1e-2  # P varies with q
+
+
+def test_sweeps_put_the_learned_matrices_beside_the_true_ones_along_each_coordinate(
+        task1, tmp_path):
+    from softpinn.bridge.analysis.sweeps import POINTS, sweep_points
+
+    q = np.concatenate([TABLE_V_Q, sample_q([-1, -0.5], [1, 0.5], 17, seed=2)])
+    result = analyze(task1, ScaledTask1(), q, transforms=("alpha",))
+    sw = result.sweeps
+    # alpha is the headline transform of a Lagrangian-like model: c = 1/alpha undoes it
+    assert sw.transform == "alpha" and sw.scale == pytest.approx(1 / 0.302)
+    assert [s.coordinate for s in sw.sweeps] == [0, 1]  # q1 spreads over [-1, 1], q2 less
+    for s in sw.sweeps:
+        assert s.q.shape == (POINTS, 2) and s.name == f"q{s.coordinate + 1} [m]"  # with units
+        other = 1 - s.coordinate
+        np.testing.assert_allclose(s.q[:, other], np.median(q[:, other]))
+        assert s.values[0] == q[:, s.coordinate].min() and s.values[-1] == q[:, s.coordinate].max()
+        for k in ("M", "D", "G"):  # the scaled learned model is the true one exactly
+            np.testing.assert_allclose(getattr(s.learned, k), getattr(s.true, k), atol=1e-12)
+    paths = write_report(result, tmp_path / "r")
+    assert paths["sweeps.png"].is_file() and "![sweeps](sweeps.png)" in paths[
+        "report.md"].read_text()
+    assert json.loads(paths["analysis.json"].read_text())["sweeps"]["transform"] == "alpha"
+    # a coordinate that never moves is not swept; one configuration gives no sweep at all
+    assert [j for j, _ in sweep_points(np.array([[0.0, 1.0], [2.0, 1.0]]))] == [0]
+    assert sweep_points(np.array([[0.0, 1.0]])) == []

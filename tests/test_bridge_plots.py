@@ -89,6 +89,12 @@ def test_transform_entries_panels_and_series(tmp_path):
     np.testing.assert_allclose(lines[0].get_ydata(), results["pointwise"].P[order, 0, 1])
     assert len(lines[2].get_xdata()) == 5  # held-out q of the smooth fit
     np.testing.assert_allclose(lines[3].get_ydata(), 0.0)  # I / alpha has no off-diagonal
+    # points, no lines, and visible ones (a colour of "none" once drew an empty figure)
+    from matplotlib.colors import to_rgba
+
+    for line in lines:
+        assert line.get_linestyle() == "None" and line.get_marker() in (".", "o")
+        assert to_rgba(line.get_markeredgecolor())[3] > 0
 
 
 def test_plot_bad_input():

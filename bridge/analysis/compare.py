@@ -22,10 +22,16 @@ from typing import Any
 import numpy as np
 
 from ..errors import UserError
-from ..report.plots import plot_entries_scatter, plot_forces, plot_transform_entries
+from ..report.plots import (
+    plot_entries_scatter,
+    plot_forces,
+    plot_sweeps,
+    plot_transform_entries,
+)
 from ..report.tables import summary_table, to_markdown, transform_table, write_table
 from .forces import ForceComparison, compare_forces
 from .forces import markdown_lines as force_lines
+from .sweeps import Sweeps, compute_sweeps
 from .transform_result import Status, match_word
 from .transforms import (
     MATRICES,
@@ -53,6 +59,7 @@ class AnalysisResult:
     meta: Mapping[str, Any] = field(default_factory=dict)
     forces: ForceComparison | None = None
     accelerations: ForceComparison | None = None
+    sweeps: Sweeps | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Every number, JSON-ready (NaN and inf as None)."""
@@ -69,6 +76,7 @@ class AnalysisResult:
                 "accelerations": (
                     None if self.accelerations is None else self.accelerations.to_dict()
                 ),
+                "sweeps": None if self.sweeps is None else self.sweeps.to_dict(),
             }
         )
 
@@ -225,6 +233,14 @@ def analyze(
     if samples is not None:
         forces, accelerations = _forces(true_model, learned_model, kind, results, samples)
     spec = getattr(true_model, "spec", None)
+    names = getattr(spec, "coordinate_names", None)
+    units = None
+    if names is not None:
+        from ..report.rollouts import coordinate_unit
+
+        units = [coordinate_unit(c, spec.kind) for c in names]
+    sweeps = compute_sweeps(true_model, learned_model, q, kind, results, names=names,
+                            units=units)
     meta = {
         "N": true.N,
         "n": true.n,
@@ -234,7 +250,7 @@ def analyze(
         "transforms": list(transforms),
         "options": options,
     }
-    return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations)
+    return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations, sweeps)
 
 
 def _forces(true_model, learned_model, kind, results, samples):
@@ -336,6 +352,10 @@ def write_report(
         plot_entries_scatter(result.true, result.learned, _scatter_rows(result), matrices=mats,
                              path=p)
         paths[p.name] = p
+        if result.sweeps is not None:
+            p = out / "sweeps.png"
+            plot_sweeps(result.sweeps, path=p)
+            paths[p.name] = p
         p = out / "P_entries.png"
         spread = np.ptp(np.asarray(result.q, float), axis=0)
         plot_transform_entries(result.q, result.results, path=p,
@@ -391,6 +411,20 @@ def write_report(
             "",
             "![scatter](scatter.png)",
             "",
+        ]
+        if "sweeps.png" in paths:
+            how = ("directly" if result.sweeps.transform == "direct" else
+                   f"times c = 1/α = {result.sweeps.scale:.4g} (M⁻¹ divided by it)")
+            lines += [
+                "## Along sweeps of q: each coordinate over the configurations' range, the "
+                "others at their median",
+                "",
+                f"True solid, learned dashed, compared {how}.",
+                "",
+                "![sweeps](sweeps.png)",
+                "",
+            ]
+        lines += [
             "## P(q) over the sampled q, along the coordinate that varies most",
             "",
             "![P entries](P_entries.png)",

@@ -29,7 +29,7 @@ def _save(fig: Figure, path: str | Path | None) -> Figure:
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(p.stem + ".tmp" + p.suffix)
-        fig.savefig(tmp, dpi=100)
+        fig.savefig(tmp, dpi=300)  # readable in print
         tmp.replace(p)
     return fig
 
@@ -124,7 +124,7 @@ def plot_transform_entries(
             for j in range(n):
                 ax = axes[i, j]
                 # points, not lines: the other coordinates vary between neighbouring samples
-                (line,) = ax.plot(x, P[:, i, j], "none", marker=".", ms=4, label=name)
+                (line,) = ax.plot(x, P[:, i, j], linestyle="none", marker=".", ms=4, label=name)
                 if train is not None:
                     held = ~np.asarray(train)[order]
                     ax.plot(x[held], P[held, i, j], "o", mfc="none", color=line.get_color())
@@ -134,6 +134,70 @@ def plot_transform_entries(
         axes[-1, i].set_xlabel(xlabel)
     axes[0, 0].legend(fontsize="x-small")
     fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
+    return _save(fig, path)
+
+
+#: How each matrix is labelled in the sweeps figure.
+_SWEEP_LABEL = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
+
+
+def _sweep_entries(key: str, shape: tuple[int, ...]) -> list[tuple[int, ...]]:
+    """The entries of one matrix a sweep draws: every entry of G; the diagonal of M, M⁻¹, D
+    and, up to n = 3, the upper off-diagonal entries too; A whole up to 6 entries, else its
+    leading diagonal."""
+    if key == "G":
+        return [(i,) for i in range(shape[0])]
+    rows, cols = shape
+    if key == "A":
+        if rows * cols <= 6:
+            return [(i, j) for i in range(rows) for j in range(cols)]
+        return [(i, i) for i in range(min(rows, cols))]
+    upper = [(i, j) for i in range(rows) for j in range(i + 1, cols)] if rows <= 3 else []
+    return [(i, i) for i in range(rows)] + upper
+
+
+def plot_sweeps(sweeps, *, path: str | Path | None = None, title: str = "") -> Figure:
+    """True (solid) against learned (dashed, same colour) entries of M or M⁻¹, D, G and A
+    along each sweep of :class:`bridge.analysis.sweeps.Sweeps`: a row per matrix, a column per
+    swept coordinate, the entries named in a legend right of each row. Matrices that are zero
+    on both sides (no damping, no inputs) are left out."""
+    cols = list(sweeps.sweeps)
+    if not cols:
+        raise UserError("sweeps: nothing to draw")
+    first = cols[0]
+    keys = [k for k in ("M", "M_inv", "D", "G", "A")
+            if first.true.has(k) and first.learned.has(k) and np.asarray(
+                getattr(first.true, k)).size
+            and any(np.any(getattr(s.true, k)) or np.any(getattr(s.learned, k)) for s in cols)]
+    if "M" in keys and "M_inv" in keys:  # one mass-like matrix: the one the network learns
+        keys.remove("M" if sweeps.mass_key == "M_inv" else "M_inv")
+    if not keys:
+        raise UserError("sweeps: no matrix present on both sides")
+    fig = Figure(figsize=(3.0 * len(cols) + 1.6, 2.1 * len(keys) + 0.8), layout="constrained")
+    axes = fig.subplots(len(keys), len(cols), squeeze=False)
+    for r, key in enumerate(keys):
+        for c, sw in enumerate(cols):
+            ax = axes[r, c]
+            x = sw.values
+            true, learned = np.asarray(getattr(sw.true, key)), np.asarray(getattr(sw.learned, key))
+            for e, idx in enumerate(_sweep_entries(key, true.shape[1:])):
+                color = f"C{e % 10}"
+                name = f"{key}[{','.join(str(i + 1) for i in idx)}]"
+                ax.plot(x, true[(slice(None), *idx)], "-", color=color, lw=1.4, label=name)
+                ax.plot(x, learned[(slice(None), *idx)], "--", color=color, lw=1.4)
+            ax.grid(alpha=0.3)
+            if c == 0:
+                ax.set_ylabel(_SWEEP_LABEL.get(key, key))
+            if r == len(keys) - 1:
+                ax.set_xlabel(sw.name)
+            if r == 0:
+                others = "others at their median"
+                ax.set_title(f"sweep of {sw.name.split(' [')[0]} ({others})", fontsize="small")
+        axes[r, -1].legend(loc="center left", bbox_to_anchor=(1.02, 0.5), fontsize="x-small",
+                           frameon=False)
+    how = ("learned as it is" if sweeps.transform == "direct"
+           else f"learned times c = 1/α = {sweeps.scale:.3g}")
+    fig.suptitle(title or f"true (solid) against {how} (dashed)")
     return _save(fig, path)
 
 

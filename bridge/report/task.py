@@ -247,6 +247,15 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     scatter = report.parent / "scatter.png"
     if scatter.is_file():
         lines += [f"![true against transformed learned entries]({_rel(scatter, out)})", ""]
+    sweeps = report.parent / "sweeps.png"
+    if sweeps.is_file():
+        lines += ["Where they part: the entries along a sweep of each coordinate through the "
+                  "configurations' range (the others at their median), true solid, learned "
+                  "dashed.", "", f"![learned against true along sweeps of q]"
+                  f"({_rel(sweeps, out)})", ""]
+    pentries = report.parent / "P_entries.png"
+    if pentries.is_file():
+        lines += [f"The transforms P(q) themselves: [P_entries.png]({_rel(pentries, out)}).", ""]
     return lines
 
 
