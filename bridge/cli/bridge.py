@@ -54,11 +54,13 @@ def register(subparsers) -> None:
             "and the black-box baseline, predict, analyze the learned matrices and write "
             "report.md; or its experiment (Section V, Table IV) on a simulated stand-in: an "
             "IMU records a tendon-driven arm, the recordings are imported with each "
-            "preprocessing and at each sensor rate (docs/experiment.md). Finished stages are "
-            "skipped when run again with the same settings."
+            "preprocessing and at each sensor rate (docs/experiment.md); or the paper's open "
+            "challenges (Section VI-B: fast Lagrangian training, a known actuator model and "
+            "additional labels, Hamiltonian networks from velocity data; docs/challenges.md). "
+            "Finished stages are skipped when run again with the same settings."
         ),
     )
-    r.add_argument("task", metavar="TASK", help="task1 ... task5, or experiment")
+    r.add_argument("task", metavar="TASK", help="task1 ... task5, experiment, or challenges")
     r.add_argument("--quick", action="store_true", help="small settings (a minute or two)")
     r.add_argument("--out", required=True,
                    help="output directory (new, empty, or an earlier reproduce's: finished "

@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import outputs
-from .plan import EXPERIMENTS, Plan, ReproduceConfig, make_plan
+from .plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan
 from .stages import (
     Stages,
     integration,
@@ -58,7 +58,7 @@ class ReproduceResult:
     config: ReproduceConfig
     out_dir: Path
     report: Path
-    plan: Plan
+    plan: Plan | None  # None for the challenges (studies with plans of their own)
     results: dict = field(repr=False)
     seconds: float = 0.0
 
@@ -83,6 +83,13 @@ def reproduce(
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
     log = log or (lambda s: None)
+    if config.task in CHALLENGES:  # the open challenges: studies of their own
+        from ..challenges.pipeline import run_challenges
+
+        out, report, results, seconds = run_challenges(
+            out_dir, quick=config.quick, log=log, progress=progress, force=force,
+            machine=machine_description())
+        return ReproduceResult(config, out, report, None, results, seconds)
     if config.task in EXPERIMENTS:  # the paper's experiment: its own pipeline
         from .experiment import run_experiment
 

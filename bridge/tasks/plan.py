@@ -15,6 +15,8 @@ from ..errors import UserError
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 #: studies ``reproduce`` runs with their own pipeline (the paper's experiment: .experiment)
 EXPERIMENTS = ("experiment",)
+#: The open-challenges studies (:mod:`bridge.challenges`): not a task of the paper's own.
+CHALLENGES = ("challenges",)
 PHYSICS_KINDS = ("lagrangian", "hamiltonian")
 
 #: The paper's smallest networks (4 wide for Task 1) did not reach its losses in our budgets;
@@ -38,9 +40,16 @@ class ReproduceConfig:
     analysis_points: int | None = None  # sampled q for the analysis (default 200, quick 40)
 
     def __post_init__(self):
-        if self.task not in TASKS + EXPERIMENTS:
-            raise UserError(f"task: expected one of {', '.join(TASKS + EXPERIMENTS)}, got "
-                            f"{self.task!r}")
+        if self.task not in TASKS + EXPERIMENTS + CHALLENGES:
+            known = ", ".join(TASKS + EXPERIMENTS + CHALLENGES)
+            raise UserError(f"task: expected one of {known}, got {self.task!r}")
+        if self.task in CHALLENGES:
+            given = [flag for flag, v in (("--seeds", self.seeds != 1), ("--epochs", self.epochs),
+                                          ("--lbfgs-steps", self.lbfgs_steps),
+                                          ("--float32", self.float32)) if v]
+            if given:
+                raise UserError(f"{', '.join(given)}: the challenges' studies set their own "
+                                "budgets (--quick for small ones); leave these out")
         if not isinstance(self.seeds, int) or self.seeds < 1:
             raise UserError(f"--seeds must be an integer >= 1, got {self.seeds!r}")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
