@@ -126,6 +126,33 @@ def test_true_model_tracks_a_reachable_step_of_the_underactuated_chain(specs):
     assert np.max(e[-20:]) < 1e-2
 
 
+@pytest.mark.parametrize("solver", ["sqp", "ipopt"])
+def test_offset_free_mpc_removes_a_wrong_models_offset(specs, tmp_path, solver):
+    """A model with 30 % stiffer springs holds the chain off the target (it expects the
+    springs to pull harder); the output-disturbance estimate measures that offset and removes
+    it, and with the true model it stays ~0."""
+    wrong = tmp_path / "stiff.toml"
+    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    tm = TrueModel(specs["full"])
+    out = tip_output(tm.spec)
+    q_star, _ = equilibrium(tm, [0.3, -0.2])
+    steps, errors, final_d = 60, {}, {}
+    for name, spec, gain in (("plain", wrong, 0.0), ("offset-free", wrong, 0.5),
+                             ("true", specs["full"], 0.5)):
+        cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3, solver=solver,
+                        codegen=False, offset_free=gain)
+        mpc = MPC(from_true(TrueModel(spec), out), cfg)
+        R = np.tile(np.asarray(out(q_star)).ravel(), (steps + cfg.horizon, 1))
+        res = closed_loop(mpc, plant(tm, cfg.dt), np.zeros(2 * tm.n), R, steps,
+                          u0=np.zeros(tm.m))
+        assert metrics(res)["failures"] == 0, name
+        errors[name] = float(np.linalg.norm(res["y"][-1] - res["r"][-1]))
+        final_d[name] = float(np.linalg.norm(mpc.disturbance))
+    assert errors["plain"] > 2e-3, errors  # the wrong model's steady offset (3.7 mm)
+    assert errors["offset-free"] < 1e-4 * errors["plain"], errors
+    assert final_d["true"] < 1e-6 and final_d["offset-free"] > 1e-2, final_d
+
+
 def test_sqp_finds_the_ipopt_optimum(specs):
     """Both solvers minimise the same problem: the same first input to 1e-6."""
     tm = TrueModel(specs["forced"])
@@ -312,6 +339,8 @@ def test_library_errors_are_user_errors(specs):
         MPCConfig(weight_y=0)
     with pytest.raises(UserError, match="qpsol: expected one of"):
         MPCConfig(qpsol="nope")
+    with pytest.raises(UserError, match=r"offset_free: expected a gain in \[0, 1\]"):
+        MPCConfig(offset_free=1.5)
     with pytest.raises(UserError, match="reference: expected one of"):
         compare(specs["forced"], [], None, references=("square",))
     tm = TrueModel(specs["forced"])

@@ -92,6 +92,11 @@ def register(subparsers) -> None:
     m.add_argument("--max-iter", dest="max_iter", type=int, default=None, metavar="N",
                    help="solver iterations per control step (default: 1 for sqp, the real-time "
                         "iteration; 50 for ipopt)")
+    m.add_argument("--offset-free", dest="offset_free", type=float, default=d.offset_free,
+                   metavar="GAIN",
+                   help="offset-free MPC: estimate a constant state disturbance from each "
+                        "step's prediction error with this gain in [0, 1] and predict with it "
+                        "(removes a learned model's steady offset; 0: off)")
     m.add_argument("--no-codegen", action="store_true",
                    help="run the solver's functions in CasADi's virtual machine, no C compiler")
     m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
@@ -136,7 +141,7 @@ def cmd_control(args) -> int:
         horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
         weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
-        max_iter=args.max_iter, codegen=not args.no_codegen,
+        max_iter=args.max_iter, codegen=not args.no_codegen, offset_free=args.offset_free,
     )
     bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)
     try:

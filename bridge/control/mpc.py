@@ -68,6 +68,12 @@ class MPCConfig:
     > 0 and an operating point given to :class:`MPC`, a model whose linearisation there has
     eigenvalues λ gets more, until h max|λ| <= ``stiffness`` for the sub-step h (RK4 is stable
     up to about 2.8; learned models can be far stiffer than the arm).
+    ``offset_free`` in [0, 1]: the gain of a state-disturbance estimate (offset-free MPC):
+    the prediction becomes x_{k+1} = F(x_k, u_k) + d̂ over the whole horizon, and after each
+    step the measured state's difference from the prediction updates it,
+    d̂ ← d̂ + gain (x − F(x₋, u₋) − d̂). At rest this makes the model's equilibria the arm's: a
+    learned model whose springs or weight are a little off would otherwise hold the arm off
+    the reference. With the true model d̂ stays ~0. 0 (the default) switches it off.
     """
 
     horizon: int = 20
@@ -85,6 +91,7 @@ class MPCConfig:
     max_iter: int | None = None
     tol: float = 1e-6
     codegen: bool = True
+    offset_free: float = 0.0
 
     def __post_init__(self):
         if self.max_iter is None:
@@ -103,6 +110,9 @@ class MPCConfig:
                 raise UserError(f"{name}: expected a finite number >= 0, got {v!r}")
         if self.weight_y == 0:
             raise UserError("weight_y: must be > 0 (the output error is what MPC tracks)")
+        if not (isinstance(self.offset_free, int | float) and not isinstance(
+                self.offset_free, bool) and 0.0 <= self.offset_free <= 1.0):
+            raise UserError(f"offset_free: expected a gain in [0, 1], got {self.offset_free!r}")
         if self.solver not in SOLVERS:
             raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
         if self.qpsol not in QP_SOLVERS:
@@ -265,6 +275,7 @@ class MPC:
         out = ca.Function("mpc_output", [xs], [ys, ca.jacobian(ys, xs)])
 
         x0, U = ca.MX.sym("x0", nx), ca.MX.sym("U", m, N)
+        dx = ca.MX.sym("d", nx)  # the state disturbance added at every step (offset_free)
         R, up = ca.MX.sym("R", ny, N), ca.MX.sym("u_prev", m)
         sy = np.sqrt(cfg.weight_y)
         D = _difference_matrix(m, N)
@@ -280,6 +291,7 @@ class MPC:
         x, S, res, rows = x0, None, [], []
         for k in range(N):
             x, Ak, Bk = stage(x, U[:, k])
+            x = x + dx
             S = Bk if S is None else ca.horzcat(ca.mtimes(Ak, S), Bk)
             y, Ck = out(x)
             res.append(sy * (y - R[:, k]))
@@ -291,19 +303,24 @@ class MPC:
         f = 0.5 * ca.sumsqr(r) + cost_u
         g = ca.mtimes(J.T, r) + grad_u
         H = ca.mtimes(J.T, J) + hess_u
-        gn = ca.Function("mpc_gn", [x0, U, R, up], [f, g, H], ["x0", "U", "R", "u_prev"],
+        gn = ca.Function("mpc_gn", [x0, U, R, up, dx], [f, g, H],
+                         ["x0", "U", "R", "u_prev", "d"],
                          ["f", "g", "H"])
         # the cost alone (line search), and the predicted outputs (for plots and checks)
         x, res, ys_all = x0, [], []
         for k in range(N):
-            x = roll(x, U[:, k])
+            x = roll(x, U[:, k]) + dx
             y, _ = out(x)
             ys_all.append(y)
             res.append(sy * (y - R[:, k]))
         fc = 0.5 * ca.sumsqr(ca.vertcat(*res)) + cost_u
-        cost = ca.Function("mpc_cost", [x0, U, R, up], [fc], ["x0", "U", "R", "u_prev"], ["f"])
-        predict = ca.Function("mpc_predict", [x0, U], [ca.horzcat(*ys_all)], ["x0", "U"], ["Y"])
-        fns = {"gn": gn, "cost": cost, "predict": predict}
+        cost = ca.Function("mpc_cost", [x0, U, R, up, dx], [fc],
+                           ["x0", "U", "R", "u_prev", "d"], ["f"])
+        predict = ca.Function("mpc_predict", [x0, U, dx], [ca.horzcat(*ys_all)],
+                              ["x0", "U", "d"], ["Y"])
+        u0 = ca.MX.sym("u0", m)
+        step = ca.Function("mpc_step", [x0, u0], [roll(x0, u0)], ["x0", "u0"], ["x1"])
+        fns = {"gn": gn, "cost": cost, "predict": predict, "step": step}
         if cfg.codegen:
             # an MX field's matrix products compile to loops that -O3 runs three times faster
             # (SX code: straight-line, the same speed at -O1, which compiles faster)
@@ -318,6 +335,7 @@ class MPC:
         else:
             self.compile_info = {"compiled": False}
         self._gn, self._cost, self._predict = fns["gn"], fns["cost"], fns["predict"]
+        self._step = fns["step"]
         opts = {"error_on_fail": False, **_QP_OPTIONS.get(cfg.qpsol, {})}
         self._qp = ca.conic("mpc_qp", cfg.qpsol,
                             {"h": ca.Sparsity.dense(N * m, N * m), "a": ca.Sparsity(0, N * m)},
@@ -350,7 +368,7 @@ class MPC:
         U = np.clip(U, self._lbu[:, None], self._ubu[:, None])
         status, ok, it, f = "max_iter", True, 0, np.nan
         for it in range(1, cfg.max_iter + 1):  # noqa: B007 - the count is reported
-            f, g, H = (np.asarray(v) for v in self._gn(x0, U, R, u_prev))
+            f, g, H = (np.asarray(v) for v in self._gn(x0, U, R, u_prev, self._d))
             f, g = float(f.item()), g.ravel()
             if not (np.isfinite(f) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
                 status, ok = "non-finite prediction", False
@@ -366,7 +384,7 @@ class MPC:
                 status = "converged"
                 break
             for _ in range(12):
-                f_new = float(self._cost(x0, U + alpha * D, R, u_prev))
+                f_new = float(self._cost(x0, U + alpha * D, R, u_prev, self._d))
                 if np.isfinite(f_new) and f_new <= f + 1e-4 * alpha * slope:
                     accepted = True
                     break
@@ -392,7 +410,7 @@ class MPC:
         if self.config.solver != "sqp":
             raise UserError("predict: only the sqp solver keeps the prediction function")
         x0 = np.asarray(self.model.to_state(q, qd), float)
-        return np.asarray(self._predict(x0, np.asarray(U, float).T)).T
+        return np.asarray(self._predict(x0, np.asarray(U, float).T, self._d)).T
 
     # ------------------------------------------------------------------ IPOPT
 
@@ -403,16 +421,18 @@ class MPC:
         sym = _sym(model.field)
         X, U = sym.sym("X", nx, N + 1), sym.sym("U", m, N)
         x0, R, u_prev = sym.sym("x0", nx), sym.sym("R", ny, N), sym.sym("u_prev", m)
+        dx = sym.sym("d", nx)  # the state disturbance added at every step (offset_free)
         cost, last, g = 0, u_prev, [X[:, 0] - x0]
         for k in range(N):
-            g.append(X[:, k + 1] - F(X[:, k], U[:, k]))
+            g.append(X[:, k + 1] - F(X[:, k], U[:, k]) - dx)
             e = model.output(X[:n, k + 1]) - R[:, k]
             cost += 0.5 * (cfg.weight_y * ca.sumsqr(e)
                            + cfg.weight_u * ca.sumsqr(U[:, k] - self._uref)
                            + cfg.weight_du * ca.sumsqr(U[:, k] - last))
             last = U[:, k]
         g = ca.vertcat(*g)
-        nlp = {"x": ca.vertcat(ca.vec(X), ca.vec(U)), "p": ca.vertcat(x0, ca.vec(R), u_prev),
+        nlp = {"x": ca.vertcat(ca.vec(X), ca.vec(U)),
+               "p": ca.vertcat(x0, ca.vec(R), u_prev, dx),
                "f": cost, "g": g}
         opts = {
             "expand": sym is ca.SX,
@@ -423,6 +443,8 @@ class MPC:
                       "mu_strategy": "adaptive"},
         }
         self.solver = ca.nlpsol("mpc", "ipopt", nlp, opts)
+        xs, us = sym.sym("x0", nx), sym.sym("u0", m)
+        self._step = ca.Function("mpc_step", [xs, us], [F(xs, us)], ["x0", "u0"], ["x1"])
         self.compiled = False
         self.compile_info = {"compiled": False}
         self._lbg = np.zeros(g.shape[0])
@@ -444,7 +466,7 @@ class MPC:
         Ug = np.clip(Ug, self._lbu[:, None], self._ubu[:, None])
         lbx, ubx = self._box
         args = dict(x0=np.concatenate([Xg.ravel(order="F"), Ug.ravel(order="F")]),
-                    p=np.concatenate([x0, R.ravel(order="F"), u_prev]),
+                    p=np.concatenate([x0, R.ravel(order="F"), u_prev, self._d]),
                     lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._lbg)
         if self._lam is not None:
             args.update(lam_g0=self._lam)
@@ -464,8 +486,16 @@ class MPC:
     # ------------------------------------------------------------------ common face
 
     def reset(self):
-        """Forget the warm start."""
+        """Forget the warm start (and the disturbance estimate)."""
         self._U = self._w = self._lam = None
+        self._d = np.zeros(self.nx)
+        self._x_next = None
+
+    @property
+    def disturbance(self) -> np.ndarray:
+        """The current state-disturbance estimate d̂ (zeros unless ``offset_free`` > 0), in the
+        prediction model's state (q, q̇), or (q, p) for a Hamiltonian network."""
+        return self._d.copy()
 
     def solve(self, q, qd, reference, u_prev):
         """The first input of the plan from the measured (q, q̇), and what the solve did."""
@@ -476,11 +506,19 @@ class MPC:
         u_prev = np.asarray(u_prev, float).reshape(self.m)
         t0 = time.perf_counter()
         x0 = np.asarray(self.model.to_state(q, qd), float)
+        gain = self.config.offset_free
+        if gain > 0 and self._x_next is not None:
+            miss = x0 - self._x_next  # = x − F(x₋, u₋) − d̂: what the model got wrong
+            if np.all(np.isfinite(miss)):
+                self._d = self._d + gain * miss
         if self.config.solver == "sqp":
             u, info = self._solve_sqp(x0, R.T, u_prev)
         else:
             u, info = self._solve_ipopt(x0, R.T, u_prev)
-        info["seconds"] = time.perf_counter() - t0
         if not np.all(np.isfinite(u)):
             u, info["success"] = u_prev.copy(), False
+        if gain > 0:  # what the model expects the state to be after this step
+            self._x_next = np.asarray(self._step(x0, u)).ravel() + self._d
+            info["disturbance"] = float(np.linalg.norm(self._d))
+        info["seconds"] = time.perf_counter() - t0
         return u, info

@@ -37,7 +37,10 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
               else f"at most {cfg['max_iter']} iterations)")
            if cfg["solver"] == "sqp" else f" (at most {cfg['max_iter']} iterations)")
         + f"; weights: output {cfg['weight_y']:g}, input {cfg['weight_u']:g}, input change "
-        f"{cfg['weight_du']:g}; input bounds: {bounds}.",
+        f"{cfg['weight_du']:g}; input bounds: {bounds}"
+        + (f"; offset-free: a constant state disturbance estimated with gain "
+           f"{cfg['offset_free']:g} from each step's prediction error is added to every "
+           "predicted step" if cfg.get("offset_free") else "") + ".",
         "",
         f"Output: {result['output']['what']} ({', '.join(result['output']['components'])}, "
         f"{unit}). Machine: {result['machine']}"
