@@ -57,6 +57,7 @@ def test_figures_are_written_also_when_a_prediction_diverged(tmp_path):
     gif = shape_animation(spec, t, q, {"lagrangian": q * 0.9, "hamiltonian": bad},
                           path=tmp_path / "shape.gif", title="t", frames=5)
     assert png.stat().st_size > 10_000 and gif.read_bytes()[:4] == b"GIF8"
+    assert png.with_suffix(".pdf").read_bytes()[:5] == b"%PDF-"  # the vector copy for print
     one = draw_configurations(load_spec("task3"), [[0.0, 0.0], [1.0, 0.0]],
                               path=tmp_path / "show.png")
     assert one.is_file()

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from .figsave import save_for_print
 from .rollouts import COLORS, NETWORK, STYLES, diverged_at, finite_points
 
 KINDS = ("lagrangian", "blackbox")
@@ -88,7 +89,7 @@ def rollout_plot(path: Path, t, measured, truth, predictions: Mapping[str, np.nd
     err_ax.set_xlabel("t [s]")
     err_ax.set_xlim(t[0], t[-1])
     err_ax.grid(alpha=0.3, which="both")
-    fig.savefig(path, dpi=130)
+    save_for_print(fig, path)
     plt.close(fig)
     return path
 
@@ -122,7 +123,7 @@ def raw_figure(path: Path, t, q_true, qd_true, processed: Mapping[str, tuple], *
     fig.legend(handles, labels, loc="outside lower center", ncols=len(labels), fontsize=8,
                frameon=False)
     fig.suptitle(title, fontsize=10, x=0.02, ha="left")
-    fig.savefig(path, dpi=130)
+    save_for_print(fig, path)
     plt.close(fig)
     return path
 
@@ -142,7 +143,7 @@ def sensor_figure(path: Path, t, angles, angles_true, bias, *, title: str) -> Pa
     axes[0].set_ylabel("angle error [rad]")
     axes[0].legend(fontsize=8)
     fig.suptitle(title, fontsize=10, x=0.02, ha="left")
-    fig.savefig(path, dpi=130)
+    save_for_print(fig, path)
     plt.close(fig)
     return path
 
@@ -175,6 +176,6 @@ def rate_figure(path: Path, results: Mapping[str, Any], *, horizon: float) -> Pa
                     color="C3", va="bottom")
     axes[0].set_ylabel(f"prediction error vs true arm [{UNIT}²], {horizon:g} s")
     axes[0].legend(fontsize=8)
-    fig.savefig(path, dpi=130)
+    save_for_print(fig, path)
     plt.close(fig)
     return path

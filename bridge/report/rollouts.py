@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .figsave import save_for_print
+
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
 STYLES = {"lagrangian": "--", "hamiltonian": "-.", "blackbox": ":"}
@@ -140,8 +142,7 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     err_ax.set_xlim(t[0], t[-1])
     err_ax.grid(alpha=0.3, which="both")
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    fig.savefig(path.with_suffix(".pdf"))  # vector, for print
+    save_for_print(fig, path, dpi=dpi)
     plt.close(fig)
     return path
 
@@ -189,8 +190,7 @@ def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
-    fig.savefig(path.with_suffix(".pdf"))  # vector, for print
+    save_for_print(fig, path, dpi=dpi)
     plt.close(fig)
     return path
 

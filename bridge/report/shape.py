@@ -12,6 +12,7 @@ import numpy as np
 
 from softpinn.symbolic.shape import backbone_points
 
+from .figsave import save_for_print
 from .rollouts import COLORS, NETWORK, diverged_at
 
 
@@ -78,7 +79,7 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
 
 
 def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray],
-                 *, path: str | Path, title: str, instants: int = 4, dpi: int = 150) -> Path:
+                 *, path: str | Path, title: str, instants: int = 4, dpi: int = 300) -> Path:
     """The true (black) and predicted backbones at ``instants`` times of a rollout, one panel
     each; a prediction that diverged before an instant is left out of that panel."""
     import matplotlib
@@ -117,7 +118,7 @@ def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[s
             ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(title, fontsize=10)
     path = Path(path)
-    fig.savefig(path, dpi=dpi)
+    save_for_print(fig, path, dpi=dpi)
     plt.close(fig)
     return path
 

@@ -12,6 +12,7 @@ import numpy as np
 from softpinn.symbolic.shape import PCC_KINDS
 
 from ..errors import UserError
+from .figsave import save_for_print
 from .paper import load_paper_tables
 from .rollouts import NETWORK as _NETWORK
 from .rollouts import coordinate_unit, finite_points, horizon_figure, rollout_figure
@@ -170,8 +171,7 @@ def _rate_figure(plan, results: dict, fig_dir: Path, out: Path) -> list[str]:
     ax.grid(alpha=0.3, which="both")
     ax.legend()
     fig.tight_layout()
-    path = fig_dir / "error_vs_rate.png"
-    fig.savefig(path, dpi=110)
+    path = save_for_print(fig, fig_dir / "error_vs_rate.png")
     plt.close(fig)
     return ["## Prediction error against sampling rate (Fig. 10)", "",
             f"![error against sampling rate]({_rel(path, out)})", ""]
