@@ -33,6 +33,10 @@ class CompilerError(UserError):
     """The C compiler failed or ran past its timeout."""
 
 
+class CompilerTimeout(CompilerError):
+    """The C compiler ran past its timeout (and was killed)."""
+
+
 def find_compiler(compiler: str | os.PathLike | None = None) -> str | None:
     """Absolute path of the C compiler, or None if there is none.
 
@@ -57,8 +61,11 @@ def compile_c(
     compiler: str,
     flags: Sequence[str] = DEFAULT_FLAGS,
     timeout: float = DEFAULT_TIMEOUT,
+    libraries: Sequence[str] = (),
 ) -> float:
     """Compile ``source`` into the shared library ``library`` atomically; return the seconds taken.
+
+    ``libraries`` (such as ``-lmvec``) follow ``-lm`` on the command line.
 
     The output goes to a temporary file in the same directory, installed with ``os.replace``.
     On timeout, on an interrupt or any other exception the compiler's whole process group is
@@ -70,7 +77,7 @@ def compile_c(
     library.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{library.stem}-", suffix=".so.tmp", dir=library.parent)
     os.close(fd)
-    cmd = [compiler, *flags, str(source), "-o", tmp, "-lm"]
+    cmd = [compiler, *flags, str(source), "-o", tmp, "-lm", *libraries]
     start = time.perf_counter()
     try:
         proc = subprocess.Popen(
@@ -84,7 +91,7 @@ def compile_c(
             _, err = proc.communicate(timeout=timeout)
         except subprocess.TimeoutExpired:
             _kill_group(proc)
-            raise CompilerError(
+            raise CompilerTimeout(
                 f"C compiler {compiler} ran past its timeout of {timeout:g} s on {source}; "
                 "raise the timeout or use fewer quadrature nodes"
             ) from None
