@@ -4,11 +4,13 @@ Every method takes numpy arrays: one state (``q`` of shape (n,)) or a batch (sha
 evaluated with ``Function.map(N)`` in one call (no Python loop), and returns numpy arrays:
 (n, n) / (n,) / float for one state, (N, n, n) / (N, n) / (N,) for a batch.
 
-Batches of :data:`COMPILE_FROM` states or more run the function compiled to C (through the code
-cache of :mod:`symbolic.codegen`, so each function compiles once per machine): task5's forward
-dynamics costs about 4.8 µs per state there against 56 µs in CasADi's interpreter, which stays
-the path for single states and small batches (where a first compile would cost more than it
-saves) and the fallback when no C compiler is found (with one warning).
+Batches of :data:`COMPILE_FROM` states or more run a batched C kernel of the function
+(:mod:`symbolic.kernel`: the SX instructions inside one loop over the states, vectorised by the
+compiler; compiled once per machine into the code cache of :mod:`symbolic.codegen`): task5's
+forward dynamics costs about 0.4 µs per state there, against 4.8 µs in CasADi's own C (``map``,
+the path for a function that has no kernel) and 56 µs in CasADi's interpreter, which stays the
+path for single states and small batches (where a first compile would cost more than it saves)
+and the fallback when no C compiler is found (with one warning).
 """
 
 from __future__ import annotations
@@ -19,7 +21,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from . import codegen
+from . import codegen, kernel
+from .compiler import CompilerError
 from .errors import UserError
 from .functions import functions
 from .spec import ModelSpec, load_spec
@@ -49,6 +52,20 @@ class TrueModel:
         self.compiled = compiled
         self._mapped: dict[tuple[str, int], ca.Function] = {}
         self._compiled: dict[str, ca.Function] = {}
+        self._kernels: dict[str, kernel.Kernel | None] = {}
+
+    def _kernel(self, key: str, batch: int) -> kernel.Kernel | None:
+        """The batched C kernel of Function ``key`` where the setting and batch size ask for
+        compiled code and one can be built (else None: CasADi's C or interpreter)."""
+        if self.compiled is False or (self.compiled is None and batch < COMPILE_FROM):
+            return None
+        if key not in self._kernels:
+            try:
+                built = kernel.kernels({key: self.functions[key]})
+            except (kernel.KernelError, CompilerError):
+                built = None  # CasADi's C (or its interpreter, with codegen's warning)
+            self._kernels[key] = None if built is None else built[key]
+        return self._kernels[key]
 
     def _batch_function(self, key: str, batch: int) -> ca.Function:
         """Function ``key`` for a batch: compiled C where the setting and batch size ask for
@@ -103,6 +120,11 @@ class TrueModel:
         if batch == 0:
             return [self._batched(f, j, np.zeros((f.size1_out(j), 0)), 0)
                     for j in range(f.n_out())]
+        kern = self._kernel(key, batch)
+        if kern is not None:
+            nz = kern(*[arrays[f.name_in(i)] for i in range(f.n_in())])
+            return [self._batched(f, j, kern.dense(j, nz[j]), batch, stacked=True)
+                    for j in range(f.n_out())]
         args = {}
         for name, a in arrays.items():
             if a.ndim == 1:
@@ -124,10 +146,13 @@ class TrueModel:
         return a[:, 0]
 
     @staticmethod
-    def _batched(f: ca.Function, j: int, value: ca.DM, batch: int):
+    def _batched(f: ca.Function, j: int, value, batch: int, stacked: bool = False):
         r, c = f.size1_out(j), f.size2_out(j)
-        a = np.array(value, dtype=float)  # r x (c * batch)
-        a = a.reshape(r, batch, c).transpose(1, 0, 2)
+        if stacked:  # (batch, r, c) from a kernel
+            a = np.asarray(value, dtype=float)
+        else:
+            a = np.array(value, dtype=float)  # r x (c * batch)
+            a = a.reshape(r, batch, c).transpose(1, 0, 2)
         if f.name_out(j) in _MATRICES:
             return a
         if r == 1 and c == 1:

@@ -1,5 +1,5 @@
-"""TrueModel's batched calls run compiled C (from the code cache) at and above COMPILE_FROM
-states, and give what CasADi's interpreter gives."""
+"""TrueModel's batched calls run compiled C (batched kernels from the code cache) at and above
+COMPILE_FROM states, and give what CasADi's interpreter gives."""
 
 from __future__ import annotations
 
@@ -24,11 +24,34 @@ def test_large_batches_run_compiled_and_agree(states, tmp_path, monkeypatch):
     q, qd, u = states
     fast, slow = TrueModel("task4"), TrueModel("task4", compiled=False)
     got, want = fast.qdd(q, qd, u), slow.qdd(q, qd, u)
-    assert fast._compiled["forward"].class_name() == "External"
-    assert slow._compiled == {}
+    assert fast._kernels["forward"] is not None  # the batched kernel, not the interpreter
+    assert fast._compiled == {} and slow._compiled == {} and slow._kernels == {}
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(fast.M(q), slow.M(q), rtol=1e-12, atol=1e-14)
+    e, g = fast.energy(q, qd), fast.hamiltonian(q, qd, u)
+    assert e.shape == (len(q),) and [a.shape for a in g] == [q.shape, q.shape]
+    np.testing.assert_allclose(e, slow.energy(q, qd), rtol=1e-12, atol=1e-14)
+    for a, b in zip(g, slow.hamiltonian(q, qd, u), strict=True):  # qdot reaches ~1e4
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12 * np.max(np.abs(b)))
+    assert fast.A(q).shape == slow.A(q).shape == (len(q), 3, 3)
     assert any((tmp_path / "cache").rglob("*.so"))
+
+
+def test_a_function_without_a_kernel_runs_casadis_c(states, tmp_path, monkeypatch):
+    from softpinn.symbolic import kernel
+
+    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path / "cache"))
+
+    def no_kernel(*args, **kwargs):
+        raise kernel.KernelError("no kernel")
+
+    monkeypatch.setattr(kernel, "kernels", no_kernel)
+    q, qd, u = states
+    tm = TrueModel("task4")
+    np.testing.assert_allclose(tm.qdd(q, qd, u), TrueModel("task4", compiled=False).qdd(q, qd, u),
+                               rtol=1e-12, atol=1e-12)
+    assert tm._kernels["forward"] is None
+    assert tm._compiled["forward"].class_name() == "External"
 
 
 def test_small_batches_and_single_states_stay_interpreted(states):
@@ -40,9 +63,10 @@ def test_small_batches_and_single_states_stay_interpreted(states):
 
 
 def test_without_compiler_falls_back_with_a_warning(states, tmp_path, monkeypatch):
-    from softpinn.symbolic import codegen
+    from softpinn.symbolic import codegen, kernel
 
     monkeypatch.setattr(codegen, "find_compiler", lambda compiler=None: None)
+    monkeypatch.setattr(kernel, "find_compiler", lambda compiler=None: None)
     monkeypatch.setattr(codegen, "_warned", set())
     q, qd, u = states
     tm = TrueModel("task4", compiled=True)
