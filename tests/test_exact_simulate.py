@@ -29,12 +29,14 @@ def _draw(name, k, duration):
                              duration=duration)
 
 
+@pytest.mark.parametrize("backend", ["jax", "c"])
 @pytest.mark.parametrize(("name", "dt", "cvodes_tol"), [("task1", 0.002, 1e-8),
                                                       ("task4", 0.001, 1e-4)])
-def test_rk4_equals_casadi_rk4_and_cvodes_to_the_step(name, dt, cvodes_tol):
+def test_rk4_equals_casadi_rk4_and_cvodes_to_the_step(name, dt, cvodes_tol, backend):
     x0, sigs = _draw(name, 3, 1.0)
     rk4 = SimulationConfig(integrator="rk4", duration=1.0, rate=50.0, dt=dt)
-    got = simulate(jax_model(name), x0, sigs, rk4)
+    got = simulate(jax_model(name), x0, sigs, rk4, backend=backend)
+    assert got.info["backend"] == backend
     ref = casadi_simulate(functions(name), x0, sigs, rk4)
     assert got.x.shape == ref.x.shape == (3, 50, 2 * load_spec(name).n)
     np.testing.assert_array_equal(got.t, ref.t)
@@ -49,9 +51,10 @@ def test_rk4_equals_casadi_rk4_and_cvodes_to_the_step(name, dt, cvodes_tol):
     assert got.info["max_mass_condition"] >= 1.0
 
 
-def test_dataset_has_the_simulate_format(tmp_path):
+@pytest.mark.parametrize("backend", ["jax", "c"])
+def test_dataset_has_the_simulate_format(tmp_path, backend):
     opts = dict(trajectories=2, duration=0.5, rate=50.0, dt=0.01, integrator="rk4")
-    got = make_dataset("task3", **opts)
+    got = make_dataset("task3", backend=backend, **opts)
     ref = casadi_dataset("task3", compile=False, **opts)
     assert set(got.meta) - {"jax_version"} == set(ref.meta)
     for key in ("t", "q", "qd", "qdd", "p", "u", "traj"):
@@ -60,24 +63,40 @@ def test_dataset_has_the_simulate_format(tmp_path):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-11, err_msg=key)
     for key in ("initial_states", "signals", "splits", "n", "m", "rate", "spec", "seed"):
         assert got.meta[key] == ref.meta[key], key
-    assert got.meta["compiled"] == "jax" and "JAX" in got.meta["simulation"]["method"]
+    if backend == "jax":
+        assert got.meta["compiled"] == "jax" and "JAX" in got.meta["simulation"]["method"]
+    else:
+        assert got.meta["compiled"] == "c-kernel" and "C kernels" in got.meta["simulation"][
+            "method"]
     back = read_dataset(write_dataset(tmp_path / "d.npz", got))
     np.testing.assert_array_equal(back.q, got.q)
     assert back.meta["simulation"] == got.meta["simulation"]
 
 
-def test_errors_name_the_problem():
+def test_auto_backend_is_c_on_the_cpu_with_a_compiler_else_jax(monkeypatch):
+    from softpinn.bridge.exact.simulate import choose_backend
+    from softpinn.symbolic import kernel
+
+    assert choose_backend("auto") == ("c" if jax.default_backend() == "cpu" else "jax")
+    monkeypatch.setattr(kernel, "find_compiler", lambda compiler=None: None)
+    assert choose_backend("auto") == "jax"
+    with pytest.raises(SimulationError, match="backend: expected one of auto, c, jax"):
+        choose_backend("gpu")
+
+
+@pytest.mark.parametrize("backend", ["jax", "c"])
+def test_errors_name_the_problem(backend):
     em = jax_model("task1")
     x0, sigs = _draw("task1", 2, 1.0)
     cfg = SimulationConfig(integrator="rk4", duration=0.2, rate=50.0)
     with pytest.raises(SimulationError, match="integrator: the JAX path integrates with 'rk4'"):
-        simulate(em, x0, sigs, SimulationConfig(integrator="cvodes"))
+        simulate(em, x0, sigs, SimulationConfig(integrator="cvodes"), backend=backend)
     with pytest.raises(SimulationError, match="expected 4 values per trajectory"):
-        simulate(em, x0[:, :3], sigs, cfg)
+        simulate(em, x0[:, :3], sigs, cfg, backend=backend)
     with pytest.raises(SimulationError, match="expected one per trajectory"):
-        simulate(em, x0, sigs[:1], cfg)
+        simulate(em, x0, sigs[:1], cfg, backend=backend)
     with pytest.raises(SingularityError, match="trajectory 1: the state is not finite"):
-        simulate(em, x0 * [[1.0], [1e308]], sigs, cfg)
+        simulate(em, x0 * [[1.0], [1e308]], sigs, cfg, backend=backend)
 
 
 def test_simulate_cli_integrator_jax_rk4(tmp_path, capsys):
@@ -88,9 +107,17 @@ def test_simulate_cli_integrator_jax_rk4(tmp_path, capsys):
     args = ["simulate", "task1", "--trajectories", "2", "--duration", "0.5", "--rate", "50",
             "--quiet", "--no-compile"]
     assert main([*args, "--integrator", "jax-rk4", "--out", str(tmp_path / "j.npz")]) == 0
-    assert "rk4 in JAX" in capsys.readouterr().out
+    assert "rk4 in JAX" in capsys.readouterr().out  # --no-compile: XLA, no C compiler
     assert main([*args, "--integrator", "rk4", "--out", str(tmp_path / "c.npz")]) == 0
     j, c = read_dataset(tmp_path / "j.npz"), read_dataset(tmp_path / "c.npz")
     assert j.meta["compiled"] == "jax" and "JAX" in j.meta["simulation"]["method"]
     for key in ("q", "qd", "u"):
         np.testing.assert_allclose(getattr(j, key), getattr(c, key), rtol=0, atol=1e-12)
+    # with a compiler: the batched C kernels, the same data
+    args = [a for a in args if a != "--no-compile"]
+    assert main([*args, "--integrator", "jax-rk4", "--out", str(tmp_path / "k.npz")]) == 0
+    assert "rk4 in batched C kernels" in capsys.readouterr().out
+    k = read_dataset(tmp_path / "k.npz")
+    assert k.meta["compiled"] == "c-kernel"
+    for key in ("q", "qd", "u"):
+        np.testing.assert_allclose(getattr(k, key), getattr(c, key), rtol=0, atol=1e-12)

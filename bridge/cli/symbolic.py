@@ -123,8 +123,9 @@ def register(subparsers) -> None:
                    "same as without)")
     p.add_argument("--integrator", choices=("cvodes", "rk4", "jax-rk4"),
                    help="cvodes (adaptive, CasADi), rk4 (fixed step, CasADi) or jax-rk4 (fixed "
-                   "step on the exact model translated to JAX: every trajectory at once, on a "
-                   "GPU when there is one; default: the spec's)")
+                   "step, every trajectory at once: batched C kernels of the exact model on "
+                   "the CPU, its JAX translation on a GPU or with --no-compile; default: the "
+                   "spec's)")
     p.add_argument("--signal", choices=SIGNALS, help="input signal kind (ranges from [data])")
     p.add_argument("--seed", type=int, metavar="S", help="random seed")
     p.add_argument(
@@ -394,7 +395,8 @@ def cmd_simulate(args) -> int:
                 from ..exact import make_dataset as jax_dataset
 
                 _enable_x64()
-                data = jax_dataset(plan=plan, progress=bar.update if bar is not None else None)
+                data = jax_dataset(plan=plan, progress=bar.update if bar is not None else None,
+                                   backend="jax" if args.no_compile else "auto")
             else:
                 data = make_dataset(
                     plan=plan,
@@ -415,7 +417,7 @@ def cmd_simulate(args) -> int:
     print(
         f"{spec.name}: wrote {out} ({k} trajectories x {per} samples at "
         f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}"
-        f"{' in JAX' if use_jax else ''}) in {seconds:.2f} s"
+        f"{_batch_word(data) if use_jax else ''}) in {seconds:.2f} s"
     )
     for rate, path, sub in zip(extra_rates, targets[1:], subs, strict=True):
         print(
@@ -466,6 +468,11 @@ def _check_writable(flag: str, path: Path) -> None:
         raise UserError(
             f"{flag} {path}: cannot write there ({parent}: {exc.strerror or type(exc).__name__})"
         ) from None
+
+
+def _batch_word(data) -> str:
+    """How --integrator jax-rk4 ran: in JAX or in the batched C kernels."""
+    return " in JAX" if data.meta.get("compiled") == "jax" else " in batched C kernels"
 
 
 def _sibling(path: Path, rate: float) -> Path:

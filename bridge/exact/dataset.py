@@ -5,7 +5,9 @@ done by :func:`.simulate.simulate` (fixed-step RK4 on the translated exact model
 trajectories at once) instead of CasADi, passed in as its ``simulator``: the same plan, the
 same draws of initial states and signals (trajectory k from ``default_rng([seed, k])``), the
 same arrays and the same ``meta``, so every consumer takes it unchanged.
-``meta["simulation"]["method"]`` and ``meta["compiled"] = "jax"`` say how it was made.
+``meta["simulation"]["method"]`` and ``meta["compiled"]`` (``"c-kernel"``: the batched C kernels
+of :mod:`softpinn.symbolic.kernel`, the default on a CPU with a C compiler; ``"jax"``: XLA, on a
+GPU or without a compiler) say how it was made.
 """
 
 from __future__ import annotations
@@ -18,9 +20,11 @@ from ...symbolic.datasets import DatasetArrays, DatasetPlan, _version, plan_data
 from ...symbolic.datasets import make_dataset as _make_dataset
 from ...symbolic.spec import ModelSpec
 from .model import jax_model
-from .simulate import simulate
+from .simulate import choose_backend, simulate
 
 METHOD = "classical Runge-Kutta 4, fixed step (JAX/XLA, translated exact model, vmap + scan)"
+METHOD_C = ("classical Runge-Kutta 4, fixed step (batched C kernels of the exact model's SX "
+            "instructions, vectorised over trajectories)")
 
 
 def make_dataset(
@@ -28,11 +32,14 @@ def make_dataset(
     *,
     plan: DatasetPlan | None = None,
     progress: Callable[[int], None] | None = None,
+    backend: str = "auto",
     **options,
 ) -> DatasetArrays:
-    """Simulate a model's data set (Section III-B) in JAX; ``plan`` or ``model`` with the
-    keyword ``options`` of :func:`softpinn.symbolic.datasets.plan_dataset` (``integrator``
-    defaults to, and must be, ``"rk4"``)."""
+    """Simulate a model's data set (Section III-B) with all trajectories at once; ``plan`` or
+    ``model`` with the keyword ``options`` of :func:`softpinn.symbolic.datasets.plan_dataset`
+    (``integrator`` defaults to, and must be, ``"rk4"``); ``backend`` as in
+    :func:`.simulate.simulate`."""
+    backend = choose_backend(backend)
     if plan is None:
         options.setdefault("integrator", "rk4")
         plan = plan_dataset(model, **options)
@@ -42,14 +49,15 @@ def make_dataset(
     em = jax_model(plan.spec)
     translate_s = time.perf_counter() - t0
 
-    def jax_rk4(x0, signals, config, progress=None):
-        return simulate(em, x0, signals, config, progress=progress)
+    def batch_rk4(x0, signals, config, progress=None):
+        return simulate(em, x0, signals, config, progress=progress, backend=backend)
 
-    data = _make_dataset(plan=plan, progress=progress, simulator=jax_rk4, simulator_meta={
-        "compiled": "jax", "compiled_from_cache": None, "jax_version": _version("jax")})
-    data.meta["simulation"]["method"] = METHOD
+    data = _make_dataset(plan=plan, progress=progress, simulator=batch_rk4, simulator_meta={
+        "compiled": "c-kernel" if backend == "c" else "jax", "compiled_from_cache": None,
+        "jax_version": _version("jax")})
+    data.meta["simulation"]["method"] = METHOD_C if backend == "c" else METHOD
     data.meta["timings_s"]["functions"] = translate_s
     return data
 
 
-__all__ = ["METHOD", "make_dataset"]
+__all__ = ["METHOD", "METHOD_C", "make_dataset"]

@@ -10,6 +10,13 @@ time steps run in ``lax.scan``; the four RK stages are a scan too, so the ODE ap
 compiled program. Returns the :class:`~softpinn.symbolic.simulate.SimResult` of the CasADi path,
 with the same checks: non-finite states and ill-conditioned mass matrices raise
 :class:`~softpinn.symbolic.simulate.SingularityError`.
+
+Two backends run the same arithmetic: ``"c"``, the batched C kernels of
+:mod:`softpinn.symbolic.kernel` (the ODE's SX instructions in a loop over trajectories that the
+compiler vectorises, with the RK4 loop in the same C, trajectories split over
+``config.threads`` threads), and ``"jax"`` (XLA). ``backend="auto"`` takes C on the CPU when a C
+compiler is found (task5: 0.4 µs per ODE evaluation against 2.4 µs in XLA, 5 s to compile
+against 13 s) and JAX on a GPU or without a compiler.
 """
 
 from __future__ import annotations
@@ -17,10 +24,12 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Sequence
 
+import casadi as ca
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...symbolic import kernel
 from ...symbolic.signals import Signal
 from ...symbolic.simulate import (
     SimResult,
@@ -93,6 +102,35 @@ def outputs_program(model: ExactModel) -> Callable:
     return jax.jit(jax.vmap(one))
 
 
+BACKENDS = ("auto", "c", "jax")
+
+
+def choose_backend(backend: str = "auto") -> str:
+    """``"c"`` or ``"jax"`` for ``backend`` (``"auto"``: C on the CPU when a compiler is
+    found, else JAX)."""
+    if backend not in BACKENDS:
+        raise SimulationError(f"backend: expected one of {', '.join(BACKENDS)}, got "
+                              f"{backend!r}")
+    if backend != "auto":
+        return backend
+    return "c" if jax.default_backend() == "cpu" and kernel.available() else "jax"
+
+
+def post_function(model: ExactModel) -> ca.Function:
+    """SX ``post(x, u) -> [p; vec(M)]`` (momentum and mass matrix at a sample)."""
+    n, m = model.n, model.m
+    x, u = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m)
+    mom = kernel.expand(model.functions["momentum"])(x[:n], x[n:])
+    mass = kernel.expand(model.functions["M"])(x[:n])
+    return ca.Function("post", [x, u], [ca.densify(ca.vertcat(mom, ca.reshape(mass, n * n, 1)))],
+                       ["x", "u"], ["post"])
+
+
+def _c_rk4(model: ExactModel, signal: Signal) -> kernel.RK4:
+    return kernel.RK4(model.functions["ode"], signal.function(),
+                      extra={"post": post_function(model)})
+
+
 def simulate(
     model: ExactModel,
     x0: np.ndarray,
@@ -100,10 +138,13 @@ def simulate(
     config: SimulationConfig,
     *,
     progress: Callable[[int], None] | None = None,
+    backend: str = "auto",
 ) -> SimResult:
     """Integrate K trajectories from ``x0`` (K, 2n) under ``signals`` (K) with fixed-step RK4
-    in JAX (``config.integrator`` must be ``"rk4"``); the result matches
-    :func:`softpinn.symbolic.simulate.simulate` field by field."""
+    (``config.integrator`` must be ``"rk4"``) on ``backend`` (see the module docstring); the
+    result matches :func:`softpinn.symbolic.simulate.simulate` field by field, and
+    ``info["backend"]`` says which ran."""
+    backend = choose_backend(backend)
     if config.integrator != "rk4":
         raise SimulationError(f"integrator: the JAX path integrates with 'rk4' only, got "
                               f"{config.integrator!r}")
@@ -127,11 +168,19 @@ def simulate(
     for i, s in enumerate(signals):
         groups.setdefault(s.structure(), []).append(i)
     start = time.perf_counter()
+    compile_s = 0.0
+    built = None
     for idx in groups.values():
-        run = rk4_program(model, signals[idx[0]], config)
         p = np.stack([signals[i].params() for i in idx], axis=1).reshape(-1, len(idx))
-        out = np.asarray(run(jnp.asarray(x0[idx].T), jnp.asarray(p)))  # (T, 2n, K_g)
-        xs[idx] = out.transpose(2, 0, 1)
+        if backend == "c":
+            built = _c_rk4(model, signals[idx[0]])
+            compile_s += built.library.compile_seconds
+            xs[idx] = built(x0[idx], p.T, T, config.substeps, config.step, config.rate,
+                            threads=config.threads)
+        else:
+            run = rk4_program(model, signals[idx[0]], config)
+            out = np.asarray(run(jnp.asarray(x0[idx].T), jnp.asarray(p)))  # (T, 2n, K_g)
+            xs[idx] = out.transpose(2, 0, 1)
         if progress is not None:
             progress(len(idx))
     integrate_s = time.perf_counter() - start
@@ -139,9 +188,13 @@ def simulate(
     for k in range(K):
         _check_finite(xs[k], t, k, n, config.step)
     u = np.stack([s(t) for s in signals]) if K else np.zeros((0, T, m))
-    post = outputs_program(model)
-    qdd, mom, mass = (np.asarray(a) for a in post(jnp.asarray(xs.reshape(K * T, 2 * n)),
-                                                 jnp.asarray(u.reshape(K * T, m))))
+    if built is not None:
+        qdd, mom, mass = _c_outputs(built, xs.reshape(K * T, 2 * n), u.reshape(K * T, m), n,
+                                    config.threads)
+    else:
+        post = outputs_program(model)
+        qdd, mom, mass = (np.asarray(a) for a in post(jnp.asarray(xs.reshape(K * T, 2 * n)),
+                                                     jnp.asarray(u.reshape(K * T, m))))
     qdd, mom = qdd.reshape(K, T, n), mom.reshape(K, T, n)
     for k in range(K):
         _check_finite(np.hstack([xs[k], qdd[k]]), t, k, n, config.step, what="acceleration")
@@ -158,8 +211,37 @@ def simulate(
                 '(phi-theta at theta = 0?): use parameterization = "delta"')
     info = {"integrate_seconds": integrate_s,
             "postprocess_seconds": time.perf_counter() - start,
-            "max_mass_condition": max_cond}
+            "max_mass_condition": max_cond, "backend": backend}
+    if backend == "c":
+        info["compile_seconds"] = compile_s
+        if built is not None:
+            info["compiler_flags"] = list(built.library.flags)
     return SimResult(t=t, x=xs, u=u, qdd=qdd, p=mom, config=config, info=info)
+
+
+def _c_outputs(rk: kernel.RK4, x: np.ndarray, u: np.ndarray, n: int, threads: int):
+    """(qdd, p, M) at N samples from the library's ode and post kernels, N split over
+    ``threads`` threads."""
+    N = len(x)
+    qdd, mom, mass = np.empty((N, n)), np.empty((N, n)), np.empty((N, n, n))
+
+    def part(ix):
+        xdot = rk.kernels["ode"](x[ix], u[ix])[0]
+        post = rk.kernels["post"](x[ix], u[ix])[0]
+        qdd[ix] = xdot[:, n:]
+        mom[ix] = post[:, :n]
+        mass[ix] = post[:, n:].reshape(-1, n, n).transpose(0, 2, 1)
+
+    parts = [ix for ix in np.array_split(np.arange(N), max(1, min(threads, N))) if len(ix)]
+    if len(parts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(len(parts)) as pool:
+            list(pool.map(part, parts))
+    else:
+        for ix in parts:
+            part(ix)
+    return qdd, mom, mass
 
 
 def _check_finite(arr, t, k, n, dt, what="state"):
@@ -173,4 +255,5 @@ def _check_finite(arr, t, k, n, dt, what="state"):
             'singular there (phi-theta at theta = 0?: use parameterization = "delta")')
 
 
-__all__ = ["outputs_program", "rk4_program", "simulate"]
+__all__ = ["BACKENDS", "choose_backend", "outputs_program", "post_function", "rk4_program",
+           "simulate"]
