@@ -62,6 +62,9 @@ class TrainConfig:
     ``accel_labels`` says: "recorded" in the file or "differences" of the velocities) or "rollout"
     (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
     first state of windows of consecutive samples of one trajectory; minibatches of windows).
+    ``equilibrium_weight`` / ``force_weight`` > 0 add the static-equilibrium labels of the data
+    file (:func:`learn.losses.label_loss`; Section VI-B's "additional labels") to the training
+    loss (not to the test loss, which stays eq. 8/9/10 alone).
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
@@ -97,6 +100,14 @@ class TrainConfig:
                          "interpolated linearly", INPUT_HOLDS)
     accel_labels: str = _f("recorded", "loss", "q̈ labels of loss 'accel': recorded in the "
                            "file, or central differences of q̇", ACCEL_LABELS)
+    equilibrium_weight: float = _f(
+        0.0, "loss", "weight of the static-equilibrium labels G(q*) = A(q*) u* of the data file "
+        "(eq_q, eq_u): + weight * mean |G - A u|^2 / mean (|G|^2 + |A u|^2) / 2 at the "
+        "equilibria (physics models; 0: off)")
+    force_weight: float = _f(
+        0.0, "loss", "weight of the measured-force labels f* = G(q*) = A(q*) u* of the data "
+        "file (eq_force): + weight * (mean |G - f|^2 + mean |A u - f|^2) / (2 mean |f|^2) "
+        "(physics models; 0: off)")
     # ensemble
     seed: int = _f(0, "ensemble", "seed of the network initialisation and minibatch order")
     seeds: int = _f(1, "ensemble", "ensemble size K (seeds S..S+K-1)")
@@ -156,7 +167,8 @@ class TrainConfig:
             raise UserError(f"warmup: expected a fraction in [0, 1), got {self.warmup!r}")
         if not 0 < self.lr_final <= 1:
             raise UserError(f"lr_final: expected a number in (0, 1], got {self.lr_final!r}")
-        for name in ("weight_decay", "clip_norm", "loss_weight"):
+        for name in ("weight_decay", "clip_norm", "loss_weight", "equilibrium_weight",
+                     "force_weight"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not (
                     math.isfinite(v) and v >= 0):
@@ -186,6 +198,10 @@ class TrainConfig:
             raise UserError(
                 f"accel_labels: {self.accel_labels!r} is for loss 'accel', not {self.loss!r}"
             )
+        for name in ("equilibrium_weight", "force_weight"):
+            if getattr(self, name) > 0 and self.model.kind == "blackbox":
+                raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "
+                                "model; a blackbox model has none (leave it 0)")
         if self.loss == "accel" and self.model.state_kind != "velocity":
             raise UserError(
                 "loss: 'accel' (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "

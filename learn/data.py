@@ -22,6 +22,9 @@ from .errors import UserError
 
 #: Arrays every dataset file must hold.
 REQUIRED_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj", "meta")
+#: Optional arrays: static equilibria G(q*) = A(q*) u* (all three or none; docs/dataset.md), the
+#: labels of ``TrainConfig.equilibrium_weight`` and ``force_weight``.
+EQUILIBRIUM_KEYS = ("eq_q", "eq_u", "eq_force")
 #: The two state layouts a model can ask for: (q, q̇) for Lagrangian and black-box models on
 #: velocity data, (q, p) for Hamiltonian models (eq. 7).
 STATE_KINDS = ("velocity", "momentum")
@@ -41,6 +44,14 @@ class Dataset:
     u: np.ndarray
     traj: np.ndarray
     meta: dict
+    eq_q: np.ndarray | None = None  # (K, n) static equilibria, or None
+    eq_u: np.ndarray | None = None  # (K, m) their constant inputs
+    eq_force: np.ndarray | None = None  # (K, n) G(q*) = A(q*) u*
+
+    @property
+    def equilibria(self) -> int:
+        """The number of static equilibria the file holds (0: none)."""
+        return 0 if self.eq_q is None else int(self.eq_q.shape[0])
 
     @property
     def n(self) -> int:
@@ -178,6 +189,7 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
                     f"(expected {', '.join(REQUIRED_KEYS)})"
                 )
             arrays = {k: np.asarray(z[k]) for k in REQUIRED_KEYS}
+            eq = {k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files}
     except UserError:
         raise
     except Exception as exc:  # not a zip / not an npz / object arrays
@@ -247,6 +259,7 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
             f"{int(traj[i])} t[{i + 1}]={t[i + 1]!r} <= t[{i}]={t[i]!r}"
         )
     f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)
+    eq = _equilibria(name, eq, n_file, u.shape[1])
     return Dataset(
         path=str(path.resolve()),
         sha256=file_sha256(path),
@@ -258,7 +271,28 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
         u=f64(u),
         traj=traj.astype(np.int64),
         meta=meta,
+        **eq,
     )
+
+def _equilibria(name: str, eq: dict, n: int, m: int) -> dict:
+    """The optional equilibrium arrays of a file, checked (all three or none, (K, n), (K, m),
+    (K, n), finite), as float64."""
+    if not eq:
+        return {}
+    if len(eq) != len(EQUILIBRIUM_KEYS):
+        raise UserError(f"dataset file {name}: has {', '.join(eq)} but not "
+                        f"{', '.join(k for k in EQUILIBRIUM_KEYS if k not in eq)} (equilibria "
+                        "need all of eq_q, eq_u, eq_force)")
+    K = eq["eq_q"].shape[0] if eq["eq_q"].ndim == 2 else -1
+    for key, width in (("eq_q", n), ("eq_u", m), ("eq_force", n)):
+        a = eq[key]
+        if a.shape != (K, width):
+            raise UserError(f"dataset file {name}: '{key}' must have shape (K, {width}) with K as "
+                            f"in 'eq_q', got {a.shape}")
+        if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)) or (
+                not np.all(np.isfinite(a))):
+            raise UserError(f"dataset file {name}: '{key}' must hold finite numbers")
+    return {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in eq.items()}
 
 
 def split_trajectories(

@@ -8,6 +8,9 @@
   Hamiltonian and the black box it also fits q̇ (resp. the whole derivative).
 * :func:`rollout_loss`: the mean of the same per-sample error over h consecutive steps
   simulated from the first state of each window.
+* :func:`label_loss`: static-equilibrium labels G(q*) = A(q*) u* (and the force f* there),
+  added to any of the above in training when ``TrainConfig.equilibrium_weight`` or
+  ``force_weight`` > 0.
 """
 
 from __future__ import annotations
@@ -32,6 +35,10 @@ __all__ = [
     "rollout_errors",
     "rollout_loss",
     "batch_vector_field",
+    "Equilibria",
+    "equilibrium_forces",
+    "equilibria_of",
+    "label_loss",
 ]
 
 
@@ -157,3 +164,67 @@ def rollout_loss(
             input_hold=input_hold,
         )
     )
+
+
+# ------------------------------------------------------------------- equilibrium labels
+
+
+class Equilibria(NamedTuple):
+    """Static-equilibrium labels (Section VI-B, "additional labels"): at rest under the constant
+    input u*, eq. 4 gives G(q*) = A(q*) u* = f*, the generalized force there."""
+
+    q: jax.Array  # (K, n)
+    u: jax.Array  # (K, m)
+    force: jax.Array  # (K, n)
+    force_scale: jax.Array  # () mean |f*|^2 over the labels (1 where all f* are 0)
+
+
+def equilibrium_forces(model, eq: Equilibria):
+    """The model's G(q*) (K, n) and A(q*) u* (K, n) at the labelled equilibria."""
+    from .models import _apply, _potential_grad
+
+    if not hasattr(model, "potential") or not hasattr(model, "input_map"):
+        raise UserError(f"equilibrium labels weigh G and A of a physics model; a "
+                        f"{model.config.kind} model has none")
+    dt = model.dtype
+    q, u = jnp.asarray(eq.q, dt), jnp.asarray(eq.u, dt)
+    G = jax.vmap(lambda qq: _potential_grad(model.potential, qq))(q)
+    Au = jax.vmap(lambda qq, uu: _apply(model.input_map, qq, uu))(q, u)
+    return G, Au
+
+
+def label_loss(model, eq: Equilibria, *, equilibrium_weight=0.0, force_weight=0.0):
+    """The label terms added to the training loss, dimensionless:
+
+    * balance (``equilibrium_weight``): mean_k |G(q*_k) - A(q*_k) u*_k|² divided by
+      mean_k (|G|² + |A u*|²) / 2 of the model itself. Relative, so that it is unchanged when
+      the network scales M, D, G and A together by one α, which leaves every trajectory the
+      same and which the labels cannot see either (a term in absolute units would pull every
+      force towards 0 along that direction); it is 0 exactly when the learned potential and
+      input forces balance at every labelled equilibrium, 2 when they are orthogonal.
+    * force (``force_weight``): (mean |G - f*|² + mean |A u* - f*|²) / (2 mean |f*|²), with the
+      measured generalized force f* (``eq_force``): it pins that scale (and G and A u at q*).
+    """
+    G, Au = equilibrium_forces(model, eq)
+    sq = lambda a: jnp.sum(a * a, axis=-1)
+    total = jnp.zeros((), G.dtype)
+    if equilibrium_weight:
+        norm = 0.5 * jnp.mean(sq(G) + sq(Au)) + jnp.finfo(G.dtype).tiny
+        total = total + equilibrium_weight * jnp.mean(sq(G - Au)) / norm
+    if force_weight:
+        f = jnp.asarray(eq.force, G.dtype)
+        scale = jnp.asarray(eq.force_scale, G.dtype)
+        total = total + force_weight * (jnp.mean(sq(G - f)) + jnp.mean(sq(Au - f))) / (2 * scale)
+    return total
+
+
+def equilibria_of(data, dtype=None) -> Equilibria:
+    """The labels of a :class:`learn.data.Dataset` holding equilibria (``eq_q`` ...)."""
+    if getattr(data, "eq_q", None) is None or data.equilibria == 0:
+        raise UserError(f"dataset file {data.path} holds no static equilibria (eq_q, eq_u, "
+                        "eq_force): simulate it with --equilibria K")
+    import numpy as np
+
+    scale = float(np.mean(np.sum(data.eq_force ** 2, axis=1)))
+    a = lambda x: jnp.asarray(x, dtype)
+    return Equilibria(a(data.eq_q), a(data.eq_u), a(data.eq_force), a(scale if scale > 0 else 1.0))

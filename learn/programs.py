@@ -29,10 +29,12 @@ from .data import (
 )
 from .errors import UserError
 from .losses import (
+    Equilibria,
     Pairs,
     Windows,
     accel_errors,
     accel_loss,
+    label_loss,
     pair_errors,
     pair_loss,
     rollout_errors,
@@ -64,9 +66,31 @@ def _configured(config: TrainConfig, accel: Callable, rollout: Callable, pair: C
     return lambda model, pairs: pair(model, pairs, **kw)
 
 
-def loss_function(config: TrainConfig) -> Callable:
-    """``loss(model, pairs) -> scalar`` of the configured kind (eq. 8/9, eq. 10 or rollout)."""
-    return _configured(config, accel_loss, rollout_loss, pair_loss)
+def loss_function(config: TrainConfig, labels: Equilibria | None = None) -> Callable:
+    """``loss(model, pairs) -> scalar`` of the configured kind (eq. 8/9, eq. 10 or rollout),
+    plus the equilibrium label terms (:func:`learn.losses.label_loss`) when ``labels`` are
+    given and ``config.equilibrium_weight`` or ``config.force_weight`` is > 0."""
+    base = _configured(config, accel_loss, rollout_loss, pair_loss)
+    weights = dict(equilibrium_weight=config.equilibrium_weight,
+                   force_weight=config.force_weight)
+    if labels is None or not any(weights.values()):
+        return base
+    return lambda model, batch: base(model, batch) + label_loss(model, labels, **weights)
+
+
+def labels_key(labels: Equilibria | None):
+    """What identifies ``labels`` in :class:`ProgramCache`'s keys (they are constants of the
+    compiled loss): None, or a digest of their values."""
+    if labels is None:
+        return None
+    import hashlib
+
+    h = hashlib.sha256()
+    for a in labels:
+        a = np.asarray(a)
+        h.update(str((a.shape, a.dtype)).encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
 
 
 def errors_function(config: TrainConfig) -> Callable:
@@ -229,7 +253,8 @@ def local_copy(tree):
 class Programs:
     """The jitted functions of one run, built once and shared by all groups of members."""
 
-    def __init__(self, config, static, train, test, n_train, batch, devices: int = 1):
+    def __init__(self, config, static, train, test, n_train, batch, devices: int = 1,
+                 labels: Equilibria | None = None):
         self.config = config
         self.devices = devices
         self.static = static
@@ -239,7 +264,7 @@ class Programs:
         self.batch = batch
         self.steps = n_train // batch
         self.opt = make_optimizer(config, self.steps, peak=1.0)
-        loss_of = loss_function(config)
+        loss_of = loss_function(config, labels)
 
         def loss_params(params, batch_pairs):
             return loss_of(eqx.combine(params, static), batch_pairs)
@@ -383,9 +408,10 @@ class ProgramCache:
         self.size = size
         self.entries: dict[tuple, Programs] = {}
 
-    def get(self, config, train_pairs, test_pairs, n_train, batch, devices: int = 1) -> Programs:
-        """The programs for ``config`` and these pair shapes on ``devices`` devices: cached, or
-        compiled now."""
+    def get(self, config, train_pairs, test_pairs, n_train, batch, devices: int = 1,
+            labels: Equilibria | None = None) -> Programs:
+        """The programs for ``config`` and these pair shapes on ``devices`` devices (and the
+        equilibrium ``labels`` of the training loss, if any): cached, or compiled now."""
         shapes = tuple(
             None if a is None else (a.shape, str(a.dtype)) for a in (*train_pairs, *test_pairs)
         )
@@ -394,12 +420,13 @@ class ProgramCache:
             for f in dataclasses.fields(config)
             if f.name not in self.UNCOMPILED
         )
-        key = (fields, shapes, n_train, batch, devices)
+        key = (fields, shapes, n_train, batch, devices, labels_key(labels))
         prog = self.entries.get(key)
         if prog is None:
             template = make_model(config.model, key=jax.random.PRNGKey(0))
             static = eqx.partition(template, eqx.is_array)[1]
-            prog = Programs(config, static, train_pairs, test_pairs, n_train, batch, devices)
+            prog = Programs(config, static, train_pairs, test_pairs, n_train, batch, devices,
+                            labels)
             if len(self.entries) >= self.size:
                 self.entries.pop(next(iter(self.entries)))
             self.entries[key] = prog

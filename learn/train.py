@@ -256,7 +256,13 @@ def train(
         for message in setting_warnings(config, data, train_np.count, batch):
             (warn or warn_setting)(message)
 
-    prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch, devices)
+    labels = None
+    if config.equilibrium_weight > 0 or config.force_weight > 0:
+        from .losses import equilibria_of
+
+        labels = equilibria_of(data, dtype)  # refused with one line when the file has none
+    prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch, devices,
+                        labels=labels)
 
     seeds = [config.seed + i for i in range(config.seeds)]
     mode = resolve_ensemble_mode(config.ensemble, config.seeds)

@@ -4,7 +4,9 @@ by :func:`read_dataset`; selecting trajectories, resampling and splitting.
 
 Flat arrays over all samples of all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p``
 (T, n), ``u`` (T, m), ``traj`` (T,) int64, and ``meta``, a 0-d string of JSON (the spec, how the
-data were simulated, signals, seeds, noise, splits, versions).
+data were simulated, signals, seeds, noise, splits, versions). Optional: static equilibria
+(:mod:`symbolic.equilibria`) ``eq_q`` (K, n), ``eq_u`` (K, m), ``eq_force`` (K, n), kept through
+selection, resampling and splitting (they are labels of the model, not samples).
 """
 
 
@@ -25,6 +27,8 @@ from .signals import Signal, signal_from_dict
 FORMAT = "softpinn-dataset"
 FORMAT_VERSION = 1
 ARRAY_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj")
+#: Optional arrays: static equilibria G(q*) = A(q*) u* and their force f* = G(q*) (docs/dataset.md).
+EQUILIBRIUM_KEYS = ("eq_q", "eq_u", "eq_force")
 
 # --------------------------------------------------------------------------------------------
 # Arrays
@@ -42,9 +46,19 @@ class DatasetArrays:
     u: np.ndarray
     traj: np.ndarray
     meta: dict
+    eq_q: np.ndarray | None = None
+    eq_u: np.ndarray | None = None
+    eq_force: np.ndarray | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: getattr(self, k) for k in ARRAY_KEYS}
+        """The arrays a file holds: :data:`ARRAY_KEYS` and the equilibria when present."""
+        out = {k: getattr(self, k) for k in ARRAY_KEYS}
+        out.update(self.equilibria())
+        return out
+
+    def equilibria(self) -> dict[str, np.ndarray]:
+        """The optional equilibrium arrays that are present (none, or all three)."""
+        return {k: getattr(self, k) for k in EQUILIBRIUM_KEYS if getattr(self, k) is not None}
 
     @property
     def trajectory_ids(self) -> np.ndarray:
@@ -121,6 +135,7 @@ def read_dataset(path: str | os.PathLike) -> DatasetArrays:
         if missing:
             raise DataError(f"dataset file {path}: missing key(s) {', '.join(missing)}")
         arrays = {k: np.asarray(z[k]) for k in ARRAY_KEYS}
+        arrays.update({k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files})
         meta = json.loads(str(z["meta"].item()))
     return DatasetArrays(meta=meta, **arrays)
 
@@ -154,7 +169,7 @@ def select_trajectories(
         meta["signals"] = [data.meta["signals"][i] for i in ids]
         meta["initial_states"] = [data.meta["initial_states"][i] for i in ids]
         meta["trajectories"] = len(ids)
-    return DatasetArrays(meta=meta, **out)
+    return DatasetArrays(meta=meta, **out, **data.equilibria())
 
 
 def resample(data: DatasetArrays, rate: float) -> DatasetArrays:
@@ -176,7 +191,8 @@ def resample(data: DatasetArrays, rate: float) -> DatasetArrays:
     meta["resampled_from_rate"] = src
     meta["samples_per_trajectory"] = int(len(rows) // max(len(data.trajectory_ids), 1))
     meta["simulation"] = dict(meta.get("simulation", {}), rate=float(rate))
-    return DatasetArrays(meta=meta, **{key: getattr(data, key)[rows] for key in ARRAY_KEYS})
+    return DatasetArrays(meta=meta, **{key: getattr(data, key)[rows] for key in ARRAY_KEYS},
+                         **data.equilibria())
 
 
 def split(data: DatasetArrays, name: str) -> DatasetArrays:
@@ -196,7 +212,7 @@ def take_samples(data: DatasetArrays, count: int | None) -> DatasetArrays:
         raise DataError(f"physics_samples: must be at least 2, got {count}")
     out = {k: getattr(data, k)[:count] for k in ARRAY_KEYS}
     meta = dict(data.meta, samples_kept=int(count))
-    return DatasetArrays(meta=meta, **out)
+    return DatasetArrays(meta=meta, **out, **data.equilibria())
 
 
 def signals_of(data: DatasetArrays) -> list[Signal]:

@@ -134,6 +134,10 @@ def register(subparsers) -> None:
         metavar="SIGMA",
         help="standard deviation of Gaussian measurement noise (default 0)",
     )
+    p.add_argument("--equilibria", type=int, default=0, metavar="K",
+                   help="also store K stable static equilibria G(q*) = A(q*) u* under constant "
+                   "inputs drawn in the signals' input box (eq_q, eq_u, eq_force; labels for "
+                   "train --equilibrium-weight; default 0: none)")
     p.add_argument("--rtol", type=float, help="cvodes relative tolerance (default 1e-10)")
     p.add_argument("--atol", type=float, help="cvodes absolute tolerance (default 1e-10)")
     p.add_argument(
@@ -332,6 +336,8 @@ def cmd_simulate(args) -> int:
         raise UserError(f"--settle: must be a non-negative number of seconds, got {args.settle}")
     if args.threads < 1:
         raise UserError(f"--threads: must be at least 1, got {args.threads}")
+    if args.equilibria < 0:
+        raise UserError(f"--equilibria: must be a count >= 0, got {args.equilibria}")
     if args.seed is not None:
         check_seed(args.seed)
     use_jax = args.integrator == "jax-rk4"
@@ -410,6 +416,10 @@ def cmd_simulate(args) -> int:
         if bar is not None:
             bar.leave = not failed  # an error leaves one clean line on stderr
             bar.close()
+    if args.equilibria:
+        from softpinn.symbolic.equilibria import attach, equilibria
+
+        data = attach(data, equilibria(spec, args.equilibria, seed=plan.seed))
     subs = [resample(data, rate) for rate in extra_rates]
     # every file complete before any appears: an interrupt leaves none, so a rerun is not refused
     write_datasets([(out, data), *zip(targets[1:], subs, strict=True)], force=args.force)
@@ -419,6 +429,10 @@ def cmd_simulate(args) -> int:
         f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}"
         f"{_batch_word(data) if use_jax else ''}) in {seconds:.2f} s"
     )
+    if args.equilibria:
+        info = data.meta["equilibria"]
+        print(f"{spec.name}: {args.equilibria} stable equilibria (largest residual "
+              f"{info['max_residual']:.1e}, {info['draws']} inputs drawn)")
     for rate, path, sub in zip(extra_rates, targets[1:], subs, strict=True):
         print(
             f"{spec.name}: wrote {path} (resampled at {rate:g} Hz, "
