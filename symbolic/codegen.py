@@ -101,7 +101,22 @@ def load_external(
     """
     path = str(Path(library).absolute())
     opts = {"enable_fd": True} if enable_fd else {}
-    return {key: ca.external(fn.name(), path, opts) for key, fn in fns.items()}
+    out = {key: ca.external(fn.name(), path, opts) for key, fn in fns.items()}
+    for key, fn in fns.items():
+        _SOURCES[id(out[key])] = (out[key], fn)  # holding the loaded one keeps its id unique
+    return out
+
+
+#: id(loaded external) -> (the loaded Function, the SX/MX Function it was compiled from)
+_SOURCES: dict[int, tuple[ca.Function, ca.Function]] = {}
+
+
+def source_of(fn: ca.Function) -> ca.Function:
+    """The SX/MX Function a compiled one (from :func:`load_external`) was made from; ``fn``
+    itself when it is not a loaded library function (for :mod:`.kernel`, which needs the
+    instructions)."""
+    entry = _SOURCES.get(id(fn))
+    return entry[1] if entry is not None and entry[0] is fn else fn
 
 
 @dataclass

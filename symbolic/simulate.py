@@ -15,6 +15,13 @@ function of time (:mod:`symbolic.signals`), evaluated exactly inside the integra
 Many trajectories run in parallel: the integrator is ``map``-ped over a chunk of trajectories
 with CasADi's ``"thread"`` parallelization; chunks advance a progress callback.
 
+When the functions are compiled (:func:`symbolic.codegen.compiled`), the work that is plain
+evaluation runs in the batched C kernels of :mod:`symbolic.kernel` (the same SX instructions,
+vectorised over states): ``rk4`` integrates all trajectories of a signal structure at once in
+C (trajectories split over ``threads`` threads), and q̈, p and M at every output sample (both
+integrators) come from one kernel. Results equal CasADi's to rounding (1e-15 relative); without
+a compiler, or with uncompiled functions, everything stays in CasADi.
+
 A trajectory that reaches a singularity of the model (the ``phi-theta`` parameterization at
 theta = 0, Fig. 12 of the paper) is never returned with NaN: a non-finite state, a mass
 matrix with condition number above ``max_condition`` or a failure of cvodes raises
@@ -37,6 +44,8 @@ from dataclasses import asdict, dataclass, field
 import casadi as ca
 import numpy as np
 
+from . import codegen, kernel
+from .compiler import CompilerError
 from .errors import UserError
 from .signals import Signal
 
@@ -297,30 +306,53 @@ def simulate(
     groups: dict[tuple, list[int]] = {}
     for i, s in enumerate(signals):
         groups.setdefault(s.structure(), []).append(i)
+    post_fn = _post_function(fns, n, m)
+    post_kernel = None
+    kernel_s = 0.0
     for idx in groups.values():
         proto = signals[idx[0]]
+        rk = None
         if config.integrator == "cvodes":
             f = cvodes_integrator(ode, proto, nx, t, config)
         else:
-            f = rk4_integrator(ode, proto, nx, config)
-        chunk = config.threads
+            start = time.perf_counter()
+            rk = _kernel_rk4(ode, proto, post_fn)
+            kernel_s += time.perf_counter() - start
+            f = rk4_integrator(ode, proto, nx, config) if rk is None else None
+        if rk is not None:
+            post_kernel = rk.kernels["post"]
+        elif post_fn is not None and post_kernel is None:
+            start = time.perf_counter()
+            post_kernel = _kernel_post(post_fn)
+            kernel_s += time.perf_counter() - start
+            if post_kernel is None:
+                post_fn = None
+        chunk = config.threads if rk is None else len(idx)  # the kernel: all at once
         for c0 in range(0, len(idx), chunk):
             ids = idx[c0 : c0 + chunk]
             start = time.perf_counter()
-            fm = f.map(len(ids), "thread", min(config.threads, len(ids))) if len(ids) > 1 else f
             p = _signal_params([signals[i] for i in ids])
-            if config.integrator == "cvodes":
-                p = np.vstack([np.zeros((1, len(ids))), p])
-            try:
-                with _quiet_stderr():
-                    out = fm(x0=x0[ids].T, p=p)["xf"]
-            except RuntimeError as exc:
-                for i in ids:
-                    _locate_failure(ode, signals[i], nx, x0[i], t, config, i)
-                raise SingularityError(
-                    f"trajectories {ids}: the integrator failed: {' '.join(str(exc).split())}"
-                ) from None
-            arr = np.asarray(out).reshape(nx, len(ids), nt).transpose(1, 2, 0)
+            if rk is not None:
+                arr = rk(x0[ids], p.T, nt, config.substeps, config.step, config.rate,
+                         threads=config.threads)
+                out = None
+            else:
+                fm = (f.map(len(ids), "thread", min(config.threads, len(ids)))
+                      if len(ids) > 1 else f)
+                if config.integrator == "cvodes":
+                    p = np.vstack([np.zeros((1, len(ids))), p])
+                try:
+                    with _quiet_stderr():
+                        out = fm(x0=x0[ids].T, p=p)["xf"]
+                except RuntimeError as exc:
+                    for i in ids:
+                        _locate_failure(ode, signals[i], nx, x0[i], t, config, i)
+                    raise SingularityError(
+                        f"trajectories {ids}: the integrator failed: "
+                        f"{' '.join(str(exc).split())}"
+                    ) from None
+            if out is not None:
+                arr = np.asarray(out).reshape(nx, len(ids), nt).transpose(1, 2, 0)
             xs[ids] = arr
             for j, i in enumerate(ids):
                 _check_finite(arr[j], t, i, n, integrator=config.integrator, dt=config.step)
@@ -330,7 +362,11 @@ def simulate(
             uu = np.stack([signals[i](t) for i in ids])
             u[ids] = uu
             flat_u = uu.reshape(len(ids) * nt, m)
-            a, pm, mm = _postprocess(fns, arr.reshape(-1, nx), flat_u, n, config.threads)
+            if post_kernel is not None:
+                a, pm, mm = _kernel_postprocess(post_kernel, arr.reshape(-1, nx), flat_u, n,
+                                                config.threads)
+            else:
+                a, pm, mm = _postprocess(fns, arr.reshape(-1, nx), flat_u, n, config.threads)
             qdd[ids] = a.reshape(len(ids), nt, n)
             mom[ids] = pm.reshape(len(ids), nt, n)
             for j, i in enumerate(ids):
@@ -359,8 +395,71 @@ def simulate(
         "integrate_seconds": integrate_s,
         "postprocess_seconds": post_s,
         "max_mass_condition": max_cond,
+        "kernels": post_kernel is not None,
+        "kernel_build_seconds": kernel_s,
     }
     return SimResult(t=t, x=xs, u=u, qdd=qdd, p=mom, config=config, info=info)
+
+
+def _post_function(fns: Mapping[str, ca.Function], n: int, m: int) -> ca.Function | None:
+    """SX ``post(x, u) -> [qdd; p; vec(M)]`` from the sources of compiled ``forward``,
+    ``momentum`` and ``M`` (None for uncompiled functions, or where there is no source)."""
+    srcs = {}
+    for key in ("forward", "momentum", "M"):
+        if key not in fns:
+            return None
+        srcs[key] = codegen.source_of(fns[key])
+        if srcs[key] is fns[key] or not srcs[key].is_a("SXFunction") and \
+                not srcs[key].is_a("MXFunction"):
+            return None  # not compiled (the caller asked for CasADi) or unknown
+    try:
+        fwd, mom, mass = (kernel.expand(srcs[k]) for k in ("forward", "momentum", "M"))
+    except kernel.KernelError:
+        return None
+    x, u = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m)
+    q, qd = x[:n], x[n:]
+    out = ca.vertcat(fwd(q, qd, u), mom(q, qd), ca.reshape(mass(q), n * n, 1))
+    return ca.Function("post", [x, u], [ca.densify(out)], ["x", "u"], ["post"])
+
+
+def _kernel_rk4(ode, signal: Signal, post_fn) -> kernel.RK4 | None:
+    """The C kernels' RK4 for compiled functions (None: CasADi's)."""
+    src = codegen.source_of(ode)
+    if post_fn is None or src is ode:
+        return None
+    try:
+        return kernel.RK4(src, signal.function(), extra={"post": post_fn})
+    except (kernel.KernelError, CompilerError):
+        return None
+
+
+def _kernel_post(post_fn) -> kernel.Kernel | None:
+    try:
+        built = kernel.kernels({"post": post_fn})
+    except (kernel.KernelError, CompilerError):
+        return None
+    return None if built is None else built["post"]
+
+
+def _kernel_postprocess(post: kernel.Kernel, x, u, n, threads):
+    """(qdd, p, M) at N samples from the post kernel, N split over ``threads`` threads."""
+    N = len(x)
+    res = np.empty((N, 2 * n + n * n))
+
+    def part(ix):
+        res[ix] = post(x[ix], u[ix])[0]
+
+    parts = [ix for ix in np.array_split(np.arange(N), max(1, min(threads, N))) if len(ix)]
+    if len(parts) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(len(parts)) as pool:
+            list(pool.map(part, parts))
+    else:
+        for ix in parts:
+            part(ix)
+    mass = res[:, 2 * n :].reshape(-1, n, n).transpose(0, 2, 1)
+    return res[:, :n], res[:, n : 2 * n], mass
 
 
 def _postprocess(fns, x, u, n, threads):
