@@ -51,7 +51,7 @@ __all__ = [
 
 KINDS = ("lagrangian", "lagrangian-hessian", "hamiltonian", "blackbox")
 _DAMPING_FORMS = ("network", "constant", "none")
-_INPUT_FORMS = ("network", "constant")
+_INPUT_FORMS = ("network", "constant", "known")
 _DTYPES = ("float64", "float32")
 _STATE_KINDS = ("velocity", "momentum")
 _NATURAL_STATE = {
@@ -86,6 +86,11 @@ class ModelConfig:
     from the data's scale. ``state_kind`` matters only for the black box ("velocity":
     x = (q, q̇), "momentum": x = (q, p)); the physics models fix it (Lagrangian: velocity,
     Hamiltonian: momentum) and ``None`` resolves to that.
+    ``input_form``: A(q) as a "network", a learned "constant", or "known": fixed, not learned
+    (Section VI-B's known actuator model, which pins the scale and frame of M, D, G), given by
+    ``known_input``, JSON text of a constant n x m matrix or of the exact A(q) as an instruction
+    program (:mod:`learn.known`; :func:`learn.known.known_input_text` writes it). The text is
+    part of the configuration, so a run's ``config.json`` rebuilds the model on its own.
     """
 
     kind: str
@@ -103,6 +108,7 @@ class ModelConfig:
     dtype: str = "float64"
     state_kind: str | None = None
     mass_init: float | None = None
+    known_input: str | None = None
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)
@@ -126,6 +132,20 @@ class ModelConfig:
             raise UserError(
                 f"input_form must be one of {list(_INPUT_FORMS)}, got {self.input_form!r}"
             )
+        if self.input_form == "known":
+            if self.kind == "blackbox":
+                raise UserError("input_form 'known' applies to physics models, not blackbox")
+            if self.m == 0:
+                raise UserError("input_form 'known' needs inputs (m >= 1); this model has m = 0")
+            if not isinstance(self.known_input, str):
+                raise UserError("input_form 'known' needs known_input: the known matrix A(q) "
+                                "(learn.known.known_input_text)")
+            from .known import parse_known_input
+
+            parse_known_input(self.known_input, self.n, self.m)
+        elif self.known_input is not None:
+            raise UserError(f"known_input is given but input_form is {self.input_form!r}; "
+                            "use input_form 'known'")
         if isinstance(self.eps, bool) or not (
                 isinstance(self.eps, int | float) and math.isfinite(self.eps) and self.eps >= 0):
             raise UserError(f"eps must be a finite number >= 0, got {self.eps!r}")
@@ -424,6 +444,10 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
         input_map = ZeroMatrix((n, 0))
     elif config.input_form == "network":
         input_map = MatrixField(n, n, m, *config.input, act, key=kA, dtype=dt)
+    elif config.input_form == "known":
+        from .known import KnownMatrix
+
+        input_map = KnownMatrix(config.known_input, n, m)
     else:
         input_map = ConstantMatrix(n, m, key=kA, dtype=dt)
     return {"mass": mass, "potential": potential, "damping": damping, "input_map": input_map}

@@ -98,6 +98,12 @@ def add_network_flags(parser, title: str = "network") -> None:
     net.add_argument("--input-form", choices=("network", "constant"),
                      default=model_defaults["input_form"],
                      help="A(q): a network or a learned constant")
+    net.add_argument(
+        "--known-input", default=None, metavar="MODEL|FILE",
+        help="fix A(q), not learned (physics models): the exact A(q) of a symbolic model (a "
+        "preset name such as task4, or a spec .toml), or a constant n x m matrix (FILE.npy, or "
+        "FILE.json holding a list of rows)",
+    )
     net.add_argument("--eps", type=float, default=model_defaults["eps"],
                      help="Cholesky diagonal shift of M")
     net.add_argument(
@@ -250,17 +256,71 @@ def _model_config(args, n: int, m: int, data=None):
                 raise UserError(
                     f"--mass-init: expected a number or 'data', got {args.mass_init!r}"
                 ) from None
+    input_form = args.input_form
+    if getattr(args, "known_input", None) is not None:
+        if args.model == "blackbox":
+            raise UserError("--known-input applies to physics models, not --model blackbox")
+        if "input_form" in getattr(args, "given", ()) and args.input_form != "known":
+            raise UserError(f"--known-input fixes A(q): leave out --input-form "
+                            f"{args.input_form}")
+        kw["known_input"] = known_input(args.known_input, n, m)
+        input_form = "known"
     return ModelConfig(
         kind=args.model,
         n=n,
         m=m,
         activation=args.activation,
         damping_form=args.damping_form,
-        input_form=args.input_form,
+        input_form=input_form,
         eps=args.eps,
         dtype="float32" if args.float32 else "float64",
         **kw,
     )
+
+
+def known_input(source: str, n: int, m: int) -> str:
+    """``--known-input``: the ``known_input`` text of a constant matrix file (.npy, or .json
+    with a list of rows) or of a symbolic model's exact A(q) (a preset name or a spec path),
+    checked against the data's n coordinates and m inputs."""
+    from pathlib import Path
+
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.known import known_input_text
+
+    path = Path(source)
+    if path.suffix in (".npy", ".json"):
+        if not path.is_file():
+            raise UserError(f"--known-input: no such file {source}")
+        import numpy as np
+
+        try:
+            if path.suffix == ".npy":
+                value = np.load(path, allow_pickle=False)
+            else:
+                value = json.loads(path.read_text("utf-8"))
+            a = np.asarray(value, dtype=np.float64)
+        except (OSError, ValueError, TypeError) as err:
+            raise UserError(f"--known-input: {source} is not a numeric matrix "
+                            f"({str(err).splitlines()[0] if str(err) else type(err).__name__})"
+                            ) from None
+        if a.shape != (n, m):
+            raise UserError(f"--known-input: {source} holds a matrix of shape {a.shape}; the "
+                            f"data need n x m = {n} x {m}")
+        if not np.all(np.isfinite(a)):
+            raise UserError(f"--known-input: {source} holds NaN or inf")
+        return known_input_text(a)
+    from softpinn.bridge.exact.serialize import spec_known_input
+
+    try:
+        text, sn, sm = spec_known_input(source)
+    except Exception as err:
+        if getattr(err, "softpinn_user_error", False):
+            raise UserError(f"--known-input: {err}") from None
+        raise
+    if (sn, sm) != (n, m):
+        raise UserError(f"--known-input: model {source} has n = {sn} coordinates and m = {sm} "
+                        f"inputs; the data have n = {n}, m = {m}")
+    return text
 
 
 def cmd_train(args) -> int:
@@ -347,7 +407,7 @@ def _warn(message: str) -> None:
 _RUN_FLAGS = frozenset({"out", "resume", "force", "quiet", "json", "given", "coordinator",
                         "num_processes", "process_id", "cluster"})
 _MODEL_FLAGS = frozenset({"model", "width", "depth", "activation", "damping_form", "input_form",
-                          "eps", "mass_init", "state", "float32", *NETS})
+                          "eps", "mass_init", "state", "float32", "known_input", *NETS})
 
 
 def _resumed_with_flags(args, stored, data):

@@ -142,7 +142,7 @@ def field_expression(field: dict, q):
 
     ``kind``: "cholesky" -> L(q) (the factor, not L Lᵀ), "constant-cholesky" -> L, "scalar" ->
     V(q), "matrix" -> A(q) (rows x cols, row-major as ``jnp.reshape``), "constant" -> the
-    stored matrix, "zero" -> zeros of ``shape``.
+    stored matrix, "known" -> the known A(q) (constant or program), "zero" -> zeros of ``shape``.
     """
     kind = field["kind"]
     if kind == "cholesky":
@@ -158,6 +158,12 @@ def field_expression(field: dict, q):
                             for i in range(rows)]) if rows and cols else ca.SX(rows, cols)
     if kind == "constant":
         return ca.SX(ca.DM(np.asarray(field["value"], float)))
+    if kind == "known":  # a known A(q): a constant, or the exact A(q) rebuilt from its program
+        if "value" in field:
+            return ca.SX(ca.DM(np.asarray(field["value"], float)))
+        from ..exact.serialize import casadi_function
+
+        return casadi_function(field["program"])(q)
     if kind == "zero":
         return ca.SX(*field["shape"])
     raise AssertionError(kind)

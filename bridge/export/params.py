@@ -32,8 +32,8 @@ def field_params(field) -> dict:
     """The parameters of one sub-network of a physics model (see :func:`.layers.field_expression`).
 
     Fields are recognised by class name (``CholeskyField``, ``ConstantCholesky``, ``ScalarField``,
-    ``MatrixField``, ``ConstantMatrix``, ``ZeroMatrix``); anything else (an analytic field put in
-    by hand) cannot be exported.
+    ``MatrixField``, ``ConstantMatrix``, ``KnownMatrix``, ``ZeroMatrix``); anything else (an
+    analytic field put in by hand) cannot be exported.
     """
     name = type(field).__name__
     if name == "CholeskyField":
@@ -49,6 +49,8 @@ def field_params(field) -> dict:
                 "shape": tuple(int(s) for s in field.shape)}
     if name == "ConstantMatrix":
         return {"kind": "constant", "value": _f64(field.value)}
+    if name == "KnownMatrix":  # a known A(q) (input_form "known"): its constant or program
+        return {"kind": "known", **field.to_data()}
     if name == "ZeroMatrix":
         return {"kind": "zero", "shape": tuple(int(s) for s in field.shape)}
     raise UserError(

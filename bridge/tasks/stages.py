@@ -197,7 +197,11 @@ def variant_model(plan: Plan, variant: Variant, kind: str,
 
 
 def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, folder: Path,
-                 progress) -> dict:
+                 progress, model_changes: Mapping[str, Any] | None = None) -> dict:
+    """Train model ``kind`` of the plan; ``model_changes``: fields of its ModelConfig set
+    otherwise (e.g. ``input_form="known"`` with ``known_input``, the known-A study)."""
+    import dataclasses
+
     from softpinn.learn.data import load_dataset
     from softpinn.learn.errors import UserError as LearnUserError
     from softpinn.learn.train import TrainConfig, train
@@ -206,7 +210,8 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
     f = files[role]
     data = load_dataset(f["path"])  # read once: for mass_init and for training
     tc = TrainConfig(
-        model=_model_config(spec, plan, kind, data, f["train"]),
+        model=dataclasses.replace(_model_config(spec, plan, kind, data, f["train"]),
+                                  **dict(model_changes or {})),
         epochs=int(m["epochs"]),
         batch_size=plan.batch_size,
         lr=float(m["lr"]),
