@@ -15,6 +15,7 @@ from typing import Any
 from .data import ACCEL_LABELS
 from .errors import UserError
 from .models import ModelConfig
+from .velocity import MOMENTA
 
 FORMAT = "softpinn-run"
 FORMAT_VERSION = 1
@@ -100,6 +101,11 @@ class TrainConfig:
                          "interpolated linearly", INPUT_HOLDS)
     accel_labels: str = _f("recorded", "loss", "q̈ labels of loss 'accel': recorded in the "
                            "file, or central differences of q̇", ACCEL_LABELS)
+    momenta: str = _f("auto", "loss", "momenta p of a Hamiltonian network: from the data file "
+                      "(eq. 9), or from the velocities, p = M(q) qd with the network's own mass "
+                      "matrix (eq. 8 on q, qd; learn/velocity.py); auto: data when the file's "
+                      "p came with it, velocity when it has none or computed ones (an import)",
+                      MOMENTA)
     equilibrium_weight: float = _f(
         0.0, "loss", "weight of the static-equilibrium labels G(q*) = A(q*) u* of the data file "
         "(eq_q, eq_u): + weight * mean |G - A u|^2 / mean (|G|^2 + |A u|^2) / 2 at the "
@@ -179,6 +185,7 @@ class TrainConfig:
             ("ensemble", ENSEMBLE_MODES),
             ("input_hold", INPUT_HOLDS),
             ("accel_labels", ACCEL_LABELS),
+            ("momenta", MOMENTA),
         ):
             if getattr(self, name) not in allowed:
                 raise UserError(
@@ -198,6 +205,7 @@ class TrainConfig:
             raise UserError(
                 f"accel_labels: {self.accel_labels!r} is for loss 'accel', not {self.loss!r}"
             )
+        self._check_momenta()
         for name in ("equilibrium_weight", "force_weight"):
             if getattr(self, name) > 0 and self.model.kind == "blackbox":
                 raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "
@@ -207,6 +215,25 @@ class TrainConfig:
                 "loss: 'accel' (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
                 f"a {self.model.kind} model uses the {self.model.state_kind} state"
             )
+
+    def _check_momenta(self):
+        """``momenta`` against the model: Hamiltonian networks only; "data" / "velocity" set
+        the model's state (momentum / velocity), and a Hamiltonian model built on (q, q̇) is
+        "velocity" (learn/velocity.py; "auto" is decided for a data set by
+        :func:`learn.velocity.resolve_momenta`)."""
+        model = self.model
+        if model.kind != "hamiltonian":
+            if self.momenta != "auto":
+                raise UserError(f"momenta: {self.momenta!r} is for Hamiltonian networks, not "
+                                f"a {model.kind} model (leave it 'auto')")
+            return
+        if self.momenta == "auto":
+            if model.state_kind == "velocity":
+                object.__setattr__(self, "momenta", "velocity")
+            return
+        state = "momentum" if self.momenta == "data" else "velocity"
+        if model.state_kind != state:
+            object.__setattr__(self, "model", dataclasses.replace(model, state_kind=state))
 
     @classmethod
     def settings(cls, group: str | None = None) -> tuple[dataclasses.Field, ...]:

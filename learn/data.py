@@ -2,7 +2,8 @@
 
 A dataset file (``.npz``, written by ``symbolic.datasets``) holds flat arrays over all samples of
 all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p`` (T, n), ``u`` (T, m), ``traj`` (T,)
-integer trajectory index, and ``meta``, a 0-d string of JSON. A training pair is two consecutive
+integer trajectory index, and ``meta``, a 0-d string of JSON; ``p`` may be left out (a
+recording has no momenta). A training pair is two consecutive
 samples of ONE trajectory (never across two); its step ``dt`` is read from ``t``, so
 variable-step data works. The pairs feed the one-step losses of eqs. 8 and 9 (state (q, q̇) or
 (q, p)), and the acceleration loss of eq. 10 (q̈ from the file).
@@ -21,7 +22,10 @@ import numpy as np
 from .errors import UserError
 
 #: Arrays every dataset file must hold.
-REQUIRED_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj", "meta")
+REQUIRED_KEYS = ("t", "q", "qd", "qdd", "u", "traj", "meta")
+#: Arrays a dataset file may hold: the momenta p = M(q) q̇ (simulated data hold them; without
+#: them a Hamiltonian network trains on the velocities, :mod:`learn.velocity`).
+OPTIONAL_KEYS = ("p",)
 #: Optional arrays: static equilibria G(q*) = A(q*) u* (all three or none; docs/dataset.md), the
 #: labels of ``TrainConfig.equilibrium_weight`` and ``force_weight``.
 EQUILIBRIUM_KEYS = ("eq_q", "eq_u", "eq_force")
@@ -40,7 +44,7 @@ class Dataset:
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
-    p: np.ndarray
+    p: np.ndarray | None  # None: the file holds no momenta
     u: np.ndarray
     traj: np.ndarray
     meta: dict
@@ -76,6 +80,9 @@ class Dataset:
         """The state of every sample: (q, q̇) for ``"velocity"``, (q, p) for ``"momentum"``."""
         if kind not in STATE_KINDS:
             raise UserError(f"state kind must be one of {STATE_KINDS}, got {kind!r}")
+        if kind == "momentum" and self.p is None:
+            raise UserError(f"dataset file {self.path} holds no momenta p: a Hamiltonian network "
+                            "trains on it with --momenta velocity (learn/velocity.py)")
         return np.concatenate([self.q, self.qd if kind == "velocity" else self.p], axis=1)
 
     def state_derivative(self, kind: str, accel: str = "recorded") -> np.ndarray | None:
@@ -121,6 +128,9 @@ def mass_scale(data: Dataset, kind: str, traj_ids=None) -> float:
     """
     if kind not in ("lagrangian", "lagrangian-hessian", "hamiltonian"):
         raise UserError(f"mass_scale: kind must be a physics model kind, got {kind!r}")
+    if data.p is None:
+        raise UserError(f"mass_init 'data': dataset file {data.path} holds no momenta p to take "
+                        "the mass scale from; give a number")
     keep = slice(None) if traj_ids is None else np.isin(data.traj, np.asarray(traj_ids))
     rms_qd = np.sqrt(np.mean(data.qd[keep] ** 2, axis=0))
     rms_p = np.sqrt(np.mean(data.p[keep] ** 2, axis=0))
@@ -188,7 +198,8 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
                     f"dataset file {name}: missing key(s) {', '.join(missing)} "
                     f"(expected {', '.join(REQUIRED_KEYS)})"
                 )
-            arrays = {k: np.asarray(z[k]) for k in REQUIRED_KEYS}
+            arrays = {k: np.asarray(z[k]) for k in REQUIRED_KEYS + OPTIONAL_KEYS
+                      if k in z.files}
             eq = {k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files}
     except UserError:
         raise
@@ -217,7 +228,7 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
         raise UserError(f"dataset file {name}: 'q' must have shape ({T}, n), got {q.shape}")
     n_file = q.shape[1]
     for key in ("qd", "qdd", "p"):
-        if arrays[key].shape != (T, n_file):
+        if key in arrays and arrays[key].shape != (T, n_file):
             raise UserError(
                 f"dataset file {name}: '{key}' must have shape ({T}, {n_file}) like 'q', "
                 f"got {arrays[key].shape}"
@@ -226,6 +237,8 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
     if u.ndim != 2 or u.shape[0] != T:
         raise UserError(f"dataset file {name}: 'u' must have shape ({T}, m), got {u.shape}")
     for key in ("t", "q", "qd", "qdd", "p", "u"):
+        if key not in arrays:
+            continue
         a = arrays[key]
         if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
             raise UserError(f"dataset file {name}: '{key}' must be numeric, got dtype {a.dtype}")
@@ -267,12 +280,13 @@ def load_dataset(path: str | Path, *, n: int | None = None, m: int | None = None
         q=f64(q),
         qd=f64(arrays["qd"]),
         qdd=f64(arrays["qdd"]),
-        p=f64(arrays["p"]),
+        p=f64(arrays["p"]) if "p" in arrays else None,
         u=f64(u),
         traj=traj.astype(np.int64),
         meta=meta,
         **eq,
     )
+
 
 def _equilibria(name: str, eq: dict, n: int, m: int) -> dict:
     """The optional equilibrium arrays of a file, checked (all three or none, (K, n), (K, m),

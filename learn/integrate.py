@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 
 from .errors import UserError
+from .velocity import integration_coordinates
 
 __all__ = ["rk4_step", "step", "rollout", "INPUT_HOLDS"]
 
@@ -42,6 +43,12 @@ def step(model, x, u0, u1, dt, *, substeps: int = 1, input_hold: str = "constant
     u(s) = u0 + (u1 - u0) s / dt. ``substeps`` RK4 steps of dt / substeps each.
     """
     _check_step_options(substeps, input_hold)
+    coords = integration_coordinates(model)
+    if coords is not None:  # stepped in other coordinates: a Hamiltonian net on (q, q̇), (q, p)
+        encode, field, decode = coords
+        inner = _SteppedField(field, model.dtype)
+        x = encode(jnp.asarray(x, model.dtype))
+        return decode(step(inner, x, u0, u1, dt, substeps=substeps, input_hold=input_hold))
     dtype = model.dtype
     x, u0, u1, dt = (jnp.asarray(a, dtype) for a in (x, u0, u1, dt))
     h = dt / substeps
@@ -66,6 +73,14 @@ def step(model, x, u0, u1, dt, *, substeps: int = 1, input_hold: str = "constant
 
     y, _ = jax.lax.scan(body, x, jnp.arange(substeps, dtype=dtype))
     return y
+
+
+class _SteppedField:
+    """The vector field a model is stepped with in its integration coordinates
+    (:func:`learn.velocity.integration_coordinates`), as :func:`step` needs it."""
+
+    def __init__(self, field, dtype):
+        self.vector_field, self.dtype = field, dtype
 
 
 def rollout(model, x0, u, t, *, substeps: int = 1, input_hold: str = "constant", reset=None):

@@ -83,9 +83,11 @@ class ModelConfig:
     ``mass_init``: None, or the initial diagonal of M (Lagrangian) or M⁻¹ (Hamiltonian): the
     bias of the Cholesky network's diagonal outputs starts where diag(L) = sqrt(mass_init).
     Data whose masses are far from 1 (task4's M⁻¹ ~ 200) otherwise start the optimiser far
-    from the data's scale. ``state_kind`` matters only for the black box ("velocity":
-    x = (q, q̇), "momentum": x = (q, p)); the physics models fix it (Lagrangian: velocity,
-    Hamiltonian: momentum) and ``None`` resolves to that.
+    from the data's scale. ``state_kind`` matters for the black box ("velocity":
+    x = (q, q̇), "momentum": x = (q, p)); the Lagrangian models fix it (velocity); a
+    Hamiltonian network has "momentum" (eq. 9 on p from the data) or "velocity" (trained and
+    stepped on (q, q̇) with its momenta p = M̂(q) q̇ from its own mass matrix,
+    :mod:`learn.velocity`); ``None`` resolves to the natural one (Hamiltonian: momentum).
     ``input_form``: A(q) as a "network", a learned "constant", or "known": fixed, not learned
     (Section VI-B's known actuator model, which pins the scale and frame of M, D, G), given by
     ``known_input``, JSON text of a constant n x m matrix or of the exact A(q) as an instruction
@@ -168,7 +170,9 @@ class ModelConfig:
             raise UserError(
                 f"state_kind must be one of {list(_STATE_KINDS)}, got {self.state_kind!r}"
             )
-        elif natural is not None and self.state_kind != natural:
+        elif natural is not None and self.state_kind != natural and not (
+                self.kind == "hamiltonian" and self.state_kind == "velocity"):
+            # a Hamiltonian network may also live on (q, q̇): momenta from its own M (velocity.py)
             raise UserError(
                 f"state_kind of a {self.kind} model must be {natural!r}, got {self.state_kind!r}"
             )
@@ -358,7 +362,9 @@ class HamiltonianNet(_PhysicsModel):
 
     @property
     def state_kind(self) -> str:
-        return "momentum"
+        """ "momentum" (x = (q, p), eq. 9), or "velocity" (x = (q, q̇), momenta p = M̂ q̇ from
+        the network's own mass matrix, :mod:`learn.velocity`)."""
+        return self.config.state_kind
 
     def _kinetic_and_potential(self, q, p):
         Lc = self.mass.factor(q)
@@ -366,6 +372,15 @@ class HamiltonianNet(_PhysicsModel):
         return 0.5 * w @ w + self.potential(q), Lc
 
     def vector_field(self, x, u):
+        """ẋ in the model's state: eq. 7 on (q, p), or (q̇, q̈) on (q, q̇) (:meth:`qdd`)."""
+        if self.config.state_kind == "velocity":
+            (x, u) = self._cast(x, u)
+            n = self.config.n
+            return jnp.concatenate([x[n:], self.qdd(x[:n], x[n:], u)])
+        return self.momentum_field(x, u)
+
+    def momentum_field(self, x, u):
+        """Eq. 7: (q̇, ṗ) at x = (q, p), whatever the model's state."""
         (x, u) = self._cast(x, u)
         n = self.config.n
         q, p = x[:n], x[n:]
@@ -382,7 +397,7 @@ class HamiltonianNet(_PhysicsModel):
         (q, qd, u) = self._cast(q, qd, u)
         n = self.config.n
         p = cho_solve(self.mass.factor(q), qd)
-        pdot = self.vector_field(jnp.concatenate([q, p]), u)[n:]
+        pdot = self.momentum_field(jnp.concatenate([q, p]), u)[n:]
 
         def velocity(qq, pp):
             Lc = self.mass.factor(qq)

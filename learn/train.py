@@ -68,6 +68,7 @@ from .rundir import (
     mean_history,
     member_dir,
 )
+from .velocity import resolve_momenta
 
 __all__ = [
     "ENSEMBLE_MODES",
@@ -208,6 +209,9 @@ def train(
                 f"{stored_cfg.seeds}-member ensemble; resume the ensemble's directory "
                 f"({run_dir.parent} if this folder was not moved): its members resume together"
             )
+        if (config is not None and config.momenta == "auto"
+                and stored_cfg.momenta != config.momenta):
+            config = dataclasses.replace(config, momenta=stored_cfg.momenta)  # auto: as decided
         changed = config is not None and config != stored_cfg
         config = resumed_config(stored_cfg, config, run_dir) if changed else stored_cfg
         changed = config != stored_cfg
@@ -225,6 +229,8 @@ def train(
             f"--resume: {data.path} is not the dataset the run in {run_dir} was trained on "
             f"(sha256 differs from {stored['dataset']['path']})"
         )
+    if not resume:  # a Hamiltonian network's momenta: from the data or its velocities
+        config = resolve_momenta(config, data)
     ensure_dtype(config.model.dtype)
     dtype = jnp.dtype(config.model.dtype)
 

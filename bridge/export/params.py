@@ -62,7 +62,10 @@ def field_params(field) -> dict:
 def model_params(model) -> dict:
     """``{"kind", "n", "m", "state_kind", ...fields}`` of a loaded ``learn.models`` model."""
     cfg = model.config
-    out = {"kind": cfg.kind, "n": int(cfg.n), "m": int(cfg.m), "state_kind": model.state_kind}
+    # a Hamiltonian network is exported as eq. 7 on (q, p), also one trained on (q, q̇) with
+    # its own momenta p = M̂ q̇ (learn/velocity.py): its field is the same
+    state = "momentum" if cfg.kind == "hamiltonian" else model.state_kind
+    out = {"kind": cfg.kind, "n": int(cfg.n), "m": int(cfg.m), "state_kind": state}
     if cfg.kind == "blackbox":
         out["mlp"] = mlp_params(model.mlp)
         return out
