@@ -50,7 +50,7 @@ def field_params(field) -> dict:
     if name == "ConstantMatrix":
         return {"kind": "constant", "value": _f64(field.value)}
     if name == "KnownMatrix":  # a known A(q) (input_form "known"): its constant or program
-        return {"kind": "known", **field.to_data()}
+        return {**field.to_data(), "kind": "known"}
     if name == "ZeroMatrix":
         return {"kind": "zero", "shape": tuple(int(s) for s in field.shape)}
     raise UserError(
