@@ -40,6 +40,16 @@ def test_program_data_round_trip(task):
     np.testing.assert_allclose(replay, true, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(replay, program, rtol=0, atol=1e-12 * scale)
     np.testing.assert_allclose(rebuilt, true, rtol=0, atol=1e-12 * scale)
+    # the exporter rebuilds the same A(q) in CasADi from the model's field
+    import casadi as ca
+
+    from softpinn.bridge.export.layers import field_expression
+    from softpinn.bridge.export.params import field_params
+
+    qs = ca.SX.sym("q", em.n)
+    exported = ca.Function("A", [qs], [field_expression(field_params(known), qs)])
+    np.testing.assert_allclose(np.stack([np.asarray(exported(qq)) for qq in q]), true, rtol=0,
+                               atol=1e-12 * scale)
     # the data come back from the matrix (the exporter's path), the same program
     back = known.to_data()["program"]
     assert back["code"] == data["code"] and back["outputs"][0]["row"] == data["outputs"][0]["row"]
@@ -54,12 +64,13 @@ def test_model_config_known_input():
     again = ModelConfig.from_dict(json.loads(json.dumps(cfg.to_dict())))
     assert again == cfg and hash(again) == hash(cfg)
     model = make_model(cfg, key=jax.random.PRNGKey(0))
-    np.testing.assert_array_equal(np.asarray(model.matrices(jnp.zeros(2))["A"]), A)
+    np.testing.assert_array_equal(np.asarray(model.input_map(jnp.zeros(2))), A)
     # no trainable leaf in A: the optimizer never moves it
     assert jax.tree_util.tree_leaves(eqx_arrays(model.input_map)) == []
     ham = make_model(ModelConfig(kind="hamiltonian", n=2, m=1, input_form="known",
                                  known_input=text), key=jax.random.PRNGKey(0))
-    assert ham.vector_field(jnp.ones(4), jnp.ones(1)).shape == (4,)
+    assert isinstance(ham.input_map, KnownMatrix)
+    np.testing.assert_array_equal(np.asarray(ham.input_map(jnp.ones(2))), A)
     prog, n, m = spec_known_input("task4")
     assert (n, m) == (3, 3)
     with pytest.raises(UserError, match="expected one input q of 2 values"):
