@@ -448,6 +448,15 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
         b0 = y + math.log(-math.expm1(-y))
         last = mass.mlp.biases[-1]
         mass = eqx.tree_at(lambda f: f.mlp.biases[-1], mass, last.at[:n].set(b0))
+        if config.input_form == "known":
+            # with A known, M itself must carry the data's scale (a learned A can follow M's
+            # instead): the whole factor starts at that scale, L ≈ sqrt(mass_init) L₀. Only
+            # the diagonal moved, the random off-diagonal part dominated M (task 4's M ~ 0.005:
+            # a first one-step loss of 4e11) and training stalled.
+            s = math.sqrt(config.mass_init)
+            W, bias = mass.mlp.weights[-1], mass.mlp.biases[-1]
+            mass = eqx.tree_at(lambda f: (f.mlp.weights[-1], f.mlp.biases[-1]), mass,
+                               (W * s, bias.at[n:].multiply(s)))
     potential = ScalarField(n, *config.potential, act, key=kV, dtype=dt)
     if config.damping_form == "network":
         damping = CholeskyField(n, *config.damping, act, 0.0, key=kD, dtype=dt)
