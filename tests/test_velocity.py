@@ -146,10 +146,10 @@ def test_cli_momenta_bad_input_is_one_line(tmp_path, capsys):
 def test_velocity_trained_hamiltonian_on_a_file_without_momenta(tmp_path):
     """Task 1's two-mass chain (eq. 25, forced on mass 2) without momenta in the file: the
     Hamiltonian network trains on (q, q̇) by itself (auto -> velocity), predicts, resumes, and
-    learns the accelerations, which velocity data determine (measured: q̈ 7.4 % off on the
-    test trajectory, test loss 5.7e-6; after the 100 AdamW epochs alone 40 %, 1.7e-4). Its
-    M⁻¹ they do not: M̂⁻¹ is 76 % off the true one even after the best scale (96 % after the
-    AdamW epochs), while M̂⁻¹ ∂Ĝ/∂q is 6-9 % off M⁻¹K (docs/velocity.md: the transforms P(q)
+    learns the accelerations, which velocity data determine (measured: test loss 4.3e-6, q̈
+    6.7 % off on the test trajectory, rollout error 8e-5). Its M⁻¹ they do not: M̂⁻¹ is 56 %
+    off the true one even after the best scale c (c = 2.1-2.2), and was 96 % off after 100
+    epochs and 76 % after 200 more L-BFGS iterations (docs/velocity.md: the transforms P(q)
     velocity data leave)."""
     from softpinn.learn.data import load_dataset
     from softpinn.learn.predict import predict
@@ -158,13 +158,13 @@ def test_velocity_trained_hamiltonian_on_a_file_without_momenta(tmp_path):
     path = _no_momenta_file(tmp_path / "msd.npz", trajectories=5, duration=6.0, rate=20.0)
     cfg = TrainConfig(model=tiny_model_config("hamiltonian", mass=(16, 1), potential=(16, 1),
                                               damping_form="constant", input_form="constant"),
-                      epochs=100, batch_size=64, lr=1e-2, test_trajectories=(4,),
-                      checkpoint_every=1000, eval_every=10, lbfgs_steps=200)
+                      epochs=400, batch_size=64, lr=1e-2, test_trajectories=(4,),
+                      checkpoint_every=1000, eval_every=20)
     res = train(path, cfg, tmp_path / "run", warn=lambda m: None)
     stored = json.loads((tmp_path / "run" / "config.json").read_text())
     assert stored["train"]["momenta"] == "velocity"
     assert stored["model"]["state_kind"] == "velocity"
-    assert res.metrics["best_test_loss"]["mean"] < 5e-5
+    assert res.metrics["best_test_loss"]["mean"] < 2e-5
     run = load_run(tmp_path / "run")
     assert run.model.state_kind == "velocity"
     data = load_dataset(path)
@@ -174,8 +174,8 @@ def test_velocity_trained_hamiltonian_on_a_file_without_momenta(tmp_path):
     err = np.linalg.norm(np.asarray(qdd) - data.qdd[rows]) / np.linalg.norm(data.qdd[rows])
     assert err < 0.15, err
     pr = predict(tmp_path / "run", path, horizon=2.0)
-    assert pr.rollout_error_mean < 1e-2
-    # resume with more L-BFGS iterations: the stored choice holds ("auto" given: as decided)
-    more = train(path, TrainConfig(**{**cfg.__dict__, "lbfgs_steps": 210}), tmp_path / "run",
+    assert pr.rollout_error_mean < 1e-3
+    # resume with more epochs: the stored choice holds ("auto" given: as decided)
+    more = train(path, TrainConfig(**{**cfg.__dict__, "epochs": 410}), tmp_path / "run",
                  resume=True, warn=lambda m: None)
     assert more.config.momenta == "velocity"

@@ -1,0 +1,409 @@
+"""Challenge 3 (Section VI-B): Hamiltonian networks from velocity data.
+
+A Hamiltonian network (eq. 7) trains on momenta (eq. 9), which no robot measures. Here it
+trains on (q, q̇) only (``softpinn train --momenta velocity``, :mod:`softpinn.learn.velocity`):
+p = M̂(q) q̇ with the network's own mass matrix inside the loss, one RK4 step of eq. 7 in
+(q, p), q̇ = M̂⁻¹(q) p back, and the velocity loss of eq. 8 (or eq. 10 where the task's recipe
+trains its Lagrangian network on accelerations: the network's q̈ at (q, q̇)). The study trains
+it beside the Lagrangian network (eq. 6) on the same velocity data with the same budget (the
+same networks, loss, epochs, learning rate, training pairs), and reports for each: the
+prediction error, the learned matrices against the true ones DIRECTLY (no transform; M, M⁻¹,
+D, G, A over the training data's configurations, M⁻¹G and M⁻¹A u at its samples), the same
+after the best single scale α, and the training time.
+
+What velocity data can determine: M⁻¹G, M⁻¹D q̇, M⁻¹A u and q̈ (invariant under every transform
+P(q) of an equivalent Lagrangian), but not M, D, G, A themselves: (c M̂⁻¹, V̂/c, D̂/c, Â/c) move
+q exactly as (M̂⁻¹, V̂, D̂, Â) for every c > 0 (:mod:`softpinn.learn.velocity`). No network
+started without the momenta' scale can find c from (q, q̇) alone; the table shows α.
+
+Budgets: the quick form (CI) trains tiny networks for a few epochs on seconds of data; the
+full form a reduced budget (:data:`BUDGETS`), minutes per task on 2 shared cores, not the
+paper's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+#: Issue 18's target for task 5: matrices within this many percent of the truth, directly.
+TARGET_PERCENT = 5.0
+#: The data variants each task's study trains on (task 5: the paper's three rates).
+VARIANTS = {"task4": ("main",), "task5": ("50Hz", "100Hz", "1000Hz")}
+#: The quick form (CI, under a minute on one core): task 5's 100 Hz data only.
+QUICK_VARIANTS = {"task5": ("100Hz",)}
+#: The full form's budgets: changes to the task's [data] table, training pairs per model,
+#: AdamW epochs and L-BFGS iterations (the same for both networks).
+BUDGETS: dict[str, dict[str, Any]] = {
+    "task4": {"data": {"train_trajectories": 6, "test_trajectories": 2},
+              "samples": 4000, "epochs": 100, "lbfgs": 0},
+    "task5": {"data": {"duration": 12.0, "train_trajectories": 6, "test_trajectories": 2},
+              "samples": 8000, "epochs": 40, "lbfgs": 0},
+}
+QUICK = {"task5": {"epochs": 10, "duration": 1.0}}
+#: The networks compared: (name, model kind, label); "hamiltonian-rk4" trains with the one-step
+#: loss of eq. 8 through the mapped RK4 step where the recipe's loss is eq. 10 (task 5; on
+#: the variants of :data:`RK4_VARIANTS`).
+MODELS = (("lagrangian", "lagrangian", "Lagrangian (eq. 6)"),
+          ("hamiltonian", "hamiltonian", "Hamiltonian from q̇ (eq. 7, p = M̂ q̇)"),
+          ("hamiltonian-rk4", "hamiltonian", "Hamiltonian from q̇, eq. 8 (mapped RK4 step)"),
+          ("hamiltonian-known", "hamiltonian", "Hamiltonian from q̇, A known"))
+RK4_VARIANTS = {"task5": ("100Hz",)}
+#: Where the Hamiltonian network from q̇ also trains with the true A(q) fixed (challenge 2a's
+#: known actuator model, ``input_form="known"``), which pins the scale velocities leave open.
+KNOWN_VARIANTS = {"task4": ("main",), "task5": ("100Hz",)}
+#: The matrices compared, in the table's order (M⁻¹G and M⁻¹A u: the acceleration frame).
+COLUMNS = ("M", "M_inv", "D", "G", "A", "Minv_G", "Minv_Au")
+LABELS = {"M": "M", "M_inv": "M⁻¹", "D": "D", "G": "G", "A": "A", "Minv_G": "M⁻¹G",
+          "Minv_Au": "M⁻¹A u"}
+
+
+def _plan(task: str, quick: bool):
+    from ...symbolic.spec import load_spec
+    from ..tasks.plan import ReproduceConfig, make_plan
+
+    spec = load_spec(task)
+    plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
+    if quick and "duration" in QUICK[task]:
+        plan = dataclasses.replace(plan, data={**plan.data, "duration": QUICK[task]["duration"],
+                                               "train_trajectories": 2, "test_trajectories": 1,
+                                               "blackbox_train_trajectories": 2},
+                                   horizon=0.6 * QUICK[task]["duration"])
+    names = (QUICK_VARIANTS if quick else VARIANTS)[task]
+    variants = tuple(dataclasses.replace(v, models=("lagrangian", "hamiltonian"))
+                     for v in plan.variants if v.name in names)
+    m = dict(plan.models["lagrangian"])
+    m.pop("mass_init", None)
+    changes: dict[str, Any] = {"variants": variants, "fixed_step": None}
+    if quick:
+        m.update(epochs=QUICK[task]["epochs"])
+    else:
+        b = BUDGETS[task]
+        changes["data"] = {**plan.data, **b["data"]}
+        changes["physics_samples"] = b["samples"]
+        m.update(epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
+    # the same budget for both networks: the Lagrangian network's recipe (sizes, loss, lr)
+    changes["models"] = {"lagrangian": m, "hamiltonian": dict(m)}
+    plan = dataclasses.replace(plan, **changes)
+    if not quick:  # the prediction horizon within the shorter trajectories
+        plan = dataclasses.replace(plan, horizon=min(plan.horizon, 0.8 * plan.data["duration"]),
+                                   long_horizon=min(plan.long_horizon, plan.data["duration"]))
+    return spec, plan, variants
+
+
+def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
+           known: bool = False) -> dict:
+    """One network on the variant's physics data; a Hamiltonian one from its velocities."""
+    from ...learn.data import load_dataset
+    from ...learn.models import ModelConfig
+    from ...learn.train import TrainConfig, train
+
+    f = files["physics"]
+    data = load_dataset(f["path"])
+    mc = ModelConfig(kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]),
+                     potential=tuple(m["potential"]), damping=tuple(m["damping"]),
+                     input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64")
+    if known:
+        from ..exact.serialize import spec_known_input
+
+        mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
+    tc = TrainConfig(
+        model=mc, epochs=int(m["epochs"]), batch_size=plan.batch_size, lr=float(m["lr"]),
+        seed=0, test_trajectories=tuple(f["test"]), samples=plan.physics_samples,
+        lbfgs_steps=int(m["lbfgs"]), substeps=int(m["substeps"]),
+        input_hold=str(m["input_hold"]), loss=str(m.get("loss", "pair")),
+        accel_labels=str(m.get("accel_labels", "recorded")),
+        loss_weight=float(m.get("loss_weight", 1.0)),
+        eval_every=max(1, int(m["epochs"]) // 25), checkpoint_every=max(1, int(m["epochs"])),
+        momenta="velocity" if kind == "hamiltonian" else "auto",
+    )
+    t0 = time.perf_counter()
+    res = train(data, tc, folder / "run", progress=progress, force=True)
+    return {"run": str(folder / "run"), "metrics": res.metrics, "config": res.config.to_dict(),
+            "wall_s": time.perf_counter() - t0}
+
+
+def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
+    """Relative residuals (percent) of the learned against the true matrices over ``count``
+    samples of the training data: directly (P = I), and after the best single scale α."""
+    from ...symbolic.model import TrueModel
+    from ..analysis.compare import learned_matrices, true_matrices
+    from ..analysis.forces import compare_forces, data_samples
+    from ..analysis.transforms import compare_direct, fit_alpha
+
+    q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
+    true, learned = true_matrices(TrueModel(spec), q), learned_matrices(model, q)
+    direct = compare_direct(true, learned, blocks=("M_inv", "D", "A", "G"))
+    acc = compare_forces(true, learned, qd, u, frame="acceleration")
+    out = {k: 100.0 * float(direct.residual[k]) for k in ("M_inv", "D", "A", "G")}
+    out["M"] = 100.0 * float(direct.params["residual_M"])
+    out["Minv_G"] = 100.0 * float(acc.error["G"])
+    out["Minv_Au"] = 100.0 * float(acc.error["A_u"])
+    out["Minv_net"] = 100.0 * float(acc.error["net"])
+    alpha = fit_alpha(true, learned, blocks=("M", "D", "A", "G"))
+    out["alpha"] = float(alpha.alpha) if np.isfinite(alpha.alpha) else None
+    out["alpha_residual"] = {k: 100.0 * float(v) for k, v in alpha.residual.items()}
+    out["alpha_residual_total"] = 100.0 * float(alpha.residual_total)
+    out["samples"] = len(q)
+    return out
+
+
+def _predict(plan, files: dict, trained: dict, folder: Path) -> dict:
+    """Rollouts of every test trajectory over the plan's horizon (within the data) from the
+    true initial state with the true inputs (the one-step test error is the training's)."""
+    from ...learn.data import load_dataset, trajectories
+    from ...learn.predict import rollouts
+    from ...learn.train import load_run
+
+    f = files["physics"]
+    data = load_dataset(f["path"])
+    run = load_run(trained["run"])
+    trajs = trajectories(data, f["test"], state=run.model_config.state_kind)
+    span = min(float(tr["t"][-1] - tr["t"][0]) for tr in trajs)
+    horizon = min(plan.horizon, span)
+    tc = run.train_config
+    rolls = rollouts(run.model, trajs, horizon=horizon, substeps=tc.substeps,
+                     input_hold=tc.input_hold)
+    errors = [float(r["error"]) for r in rolls]
+    with np.errstate(invalid="ignore", over="ignore"):
+        mean = float(np.mean(errors))
+    return {"prediction_error": mean, "prediction_errors": errors, "horizon_s": horizon}
+
+
+def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> dict[str, Any]:
+    from ...learn.data import load_dataset
+    from ...learn.train import load_ensemble
+    from ..tasks.stages import variant_model
+
+    data = load_dataset(files["physics"]["path"])
+    out: dict[str, Any] = {}
+    for name, kind, _label in MODELS:
+        m = variant_model(plan, variant, kind, files)
+        if name == "hamiltonian-rk4":
+            if quick or variant.name not in RK4_VARIANTS.get(task, ()) or m.get("loss") != "accel":
+                continue
+            m = {**m, "loss": "pair", "accel_labels": "recorded"}
+        if name == "hamiltonian-known" and (quick or
+                                            variant.name not in KNOWN_VARIANTS.get(task, ())):
+            continue
+        settings = {"plan": plan.to_dict(), "variant": variant.name, "model": m, "kind": kind}
+        if name == "hamiltonian-known":
+            settings["known"] = True
+        tag = f"{variant.name}-{name}"
+        trained = stages.run(f"train-{tag}", settings,
+                             lambda f, k=kind, mm=m, kn=name == "hamiltonian-known": _train(
+                                 spec, plan, k, mm, files, f, progress, known=kn))
+        pred = stages.run(f"predict-{tag}", settings,
+                          lambda f, t=trained: _predict(plan, files, t, f))
+        mats = stages.run(
+            f"matrices-{tag}", settings,
+            lambda f, t=trained: _matrices(spec, load_ensemble(t["run"])[0].model, data,
+                                           files["physics"]["train"], 40 if quick else 2000))
+        out[name] = {
+            "matrices": mats,
+            "prediction_error": pred["prediction_error"],
+            "prediction_errors": pred["prediction_errors"],
+            "horizon_s": pred["horizon_s"],
+            "best_test_loss": trained["metrics"]["best_test_loss"]["mean"],
+            "train_seconds": trained["metrics"]["seconds"]["mean"],
+            "epochs": int(m["epochs"]), "lbfgs_steps": int(m["lbfgs"]),
+            "substeps": int(m["substeps"]), "loss": str(m.get("loss", "pair")),
+            "momenta": trained["config"].get("momenta"),
+            "state": trained["config"]["model"]["state_kind"],
+        }
+    return out
+
+
+def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]:
+    from ..tasks.stages import Stages, stage_data
+
+    spec, plan, variants = _plan(task, quick)
+    stages = Stages(out, lambda s: log(f"{task}: {s}"))
+    data_info = stages.run("data", {"data": plan.data, "variants": [v.name for v in variants]},
+                           lambda f: stage_data(spec, plan, f))
+    result: dict[str, Any] = {"samples": plan.physics_samples, "variants": {}}
+    for variant in variants:
+        files = data_info["variants"][variant.name]
+        result["variants"][variant.name] = _variant(task, spec, plan, variant, files, stages,
+                                                    quick=quick, progress=progress)
+        result["variants"][variant.name]["train_pairs_available"] = files["physics"]["samples"]
+    return result
+
+
+def _clean(x):
+    """JSON-ready: non-finite floats as None."""
+    if isinstance(x, dict):
+        return {k: _clean(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_clean(v) for v in x]
+    if isinstance(x, float | np.floating):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x
+
+
+def _fmt(x, digits: int = 3) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    if abs(x) >= 100:
+        return f"{x:.0f}"
+    return f"{x:.{digits}g}"
+
+
+def _rows(results: dict[str, Any]):
+    """(task, variant, name, label, entry) for every trained network."""
+    for task, r in results.items():
+        for variant, models in r["variants"].items():
+            for name, _kind, label in MODELS:
+                if name in models:
+                    yield task, variant, name, label, models[name]
+
+
+def _figure(results: dict[str, Any], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    panels = [(t, v) for t, r in results.items() for v in r["variants"]]
+    fig, axes = plt.subplots(2, len(panels), figsize=(4.6 * len(panels), 6.6), squeeze=False,
+                             constrained_layout=True)
+    x = np.arange(len(COLUMNS))
+    colors = {"lagrangian": "C0", "hamiltonian": "C3", "hamiltonian-rk4": "C1",
+              "hamiltonian-known": "C2"}
+    short = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian\nfrom q̇",
+             "hamiltonian-rk4": "Hamiltonian\nfrom q̇, eq. 8",
+             "hamiltonian-known": "Hamiltonian\nfrom q̇, A known"}
+    for j, (task, variant) in enumerate(panels):
+        models = results[task]["variants"][variant]
+        present = [(name, label) for name, _kind, label in MODELS if name in models]
+        ax = axes[0, j]
+        for i, (name, label) in enumerate(present):
+            e = models[name]["prediction_error"]
+            ax.bar(i, e if e is not None and np.isfinite(e) else np.nan, 0.6,
+                   color=colors[name], label=label)
+        ax.set_yscale("log")
+        ax.set_xticks(range(len(present)), [short[name] for name, _ in present], fontsize=7)
+        ax.set_ylabel(f"rollout error, mean ‖q − q̂‖² over {models['lagrangian']['horizon_s']:g} s")
+        ax.set_title(f"{task}, {variant}: rollout error (test)")
+        ax = axes[1, j]
+        width = 0.8 / len(present)
+        for i, (name, label) in enumerate(present):
+            vals = [models[name]["matrices"][c] for c in COLUMNS]
+            vals = [v if v is not None and np.isfinite(v) else np.nan for v in vals]
+            ax.bar(x + (i - (len(present) - 1) / 2) * width, np.maximum(vals, 1e-3), width,
+                   color=colors[name], label=label)
+        ax.axhline(TARGET_PERCENT, color="k", ls="--", lw=0.8,
+                   label=f"target {TARGET_PERCENT:g} %")
+        ax.set_yscale("log")
+        ax.set_xticks(x, [LABELS[c] for c in COLUMNS], fontsize=8)
+        ax.set_ylabel("direct relative residual [%]")
+        ax.set_title(f"{task}, {variant}: learned vs true (no transform)")
+        ax.legend(fontsize=6)
+    fig.savefig(path, dpi=300)
+    plt.close(fig)
+
+
+def _targets(results: dict[str, Any]) -> list[dict[str, Any]]:
+    """Issue 18's task 5 targets, as measured: per rate, the Hamiltonian network's prediction
+    error no worse than the Lagrangian network's, and its matrices within 5 % directly."""
+    out = []
+    r5 = results.get("task5")
+    if not r5:
+        return out
+    for variant, models in r5["variants"].items():
+        h, lg = models["hamiltonian"], models["lagrangian"]
+        eh, el = h["prediction_error"], lg["prediction_error"]
+        ok = (eh is not None and el is not None and math.isfinite(eh) and math.isfinite(el)
+              and eh <= el)
+        out.append({"what": f"task5 {variant}: Hamiltonian-from-q̇ prediction error vs "
+                            "Lagrangian", "target": "no worse",
+                    "measured": f"{_fmt(eh)} vs {_fmt(el)}", "met": bool(ok)})
+        for name, label in (("hamiltonian", "Hamiltonian-from-q̇"),
+                            ("hamiltonian-known", "Hamiltonian-from-q̇ with A known")):
+            if name not in models:
+                continue
+            mt = models[name]["matrices"]
+            worst = max((mt[c] for c in COLUMNS if mt[c] is not None), default=None)
+            out.append({"what": f"task5 {variant}: {label} matrices, direct (worst of "
+                                + ", ".join(LABELS[c] for c in COLUMNS) + ")",
+                        "target": f"≤ {TARGET_PERCENT:g} %", "measured": f"{_fmt(worst)} %",
+                        "met": worst is not None and worst <= TARGET_PERCENT})
+    return out
+
+
+def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) -> str:
+    lines = [
+        "Hamiltonian networks (eq. 7) trained on velocity data only (`softpinn train --model "
+        "hamiltonian --momenta velocity`): p = M̂(q) q̇ with the network's own mass matrix "
+        "inside the loss, one RK4 step of eq. 7 in (q, p), q̇ = M̂⁻¹(q) p back, and the "
+        "task's velocity loss (eq. 8; eq. 10 on task 5, whose Lagrangian recipe trains on "
+        "differenced accelerations). Beside the Lagrangian network (eq. 6) on the same data "
+        "with the same networks, loss, epochs, learning rate and training pairs. Matrices: "
+        "relative residual ‖learned − true‖_F / ‖true‖_F in percent over the training data's "
+        "configurations, directly (no transform); M⁻¹G and M⁻¹A u at its samples (these no "
+        "transform changes); α: the best single scale (learned ≈ α true over M, D, A, G) and "
+        "the residuals after it. Prediction error: mean over test trajectories of the mean "
+        "‖q − q̂‖² of a rollout from the true initial state with the true inputs. Two more "
+        "Hamiltonian networks from q̇ where marked: trained with eq. 8 through the mapped RK4 "
+        "step where the recipe's loss is eq. 10, and with the true A(q) fixed (challenge 2a's "
+        "known actuator model), which pins the scale velocity data leave open.", "",
+        "| task | data | network | loss | state | " + " | ".join(LABELS[c] for c in COLUMNS)
+        + " | α | after α: M, D, A, G | test loss | prediction error | train time |",
+        "|---" * (len(COLUMNS) + 10) + "|",
+    ]
+    for task, variant, _name, label, e in _rows(results):
+        mt = e["matrices"]
+        ar = mt["alpha_residual"]
+        after = ", ".join(_fmt(ar.get(k), 2) for k in ("M", "D", "A", "G"))
+        lines.append(
+            f"| {task} | {variant} | {label} | {e['loss']} | {e['state']} | "
+            + " | ".join(_fmt(mt[c], 2) + " %" for c in COLUMNS)
+            + f" | {_fmt(mt['alpha'])} | {after} % | {_fmt(e['best_test_loss'])} | "
+            f"{_fmt(e['prediction_error'])} ({e['horizon_s']:g} s) | "
+            f"{e['train_seconds']:.0f} s |")
+    lines += ["", f"![prediction error and direct matrix residuals]({figure})", ""]
+    budgets = []
+    for task, r in results.items():
+        first = next(iter(r["variants"].values()))["lagrangian"]
+        budgets.append(f"{task}: {first['epochs']} AdamW epochs + {first['lbfgs_steps']} "
+                       f"L-BFGS iterations on {r['samples'] or 'all'} training pairs")
+    lines += ["Budgets (both networks alike): " + "; ".join(budgets)
+              + f". Wall time {seconds:.0f} s.", ""]
+    lines += [
+        "What the numbers can say: from (q, q̇) alone the network's M, D, G, A are fixed only "
+        "up to the same transform P(q) as a Lagrangian network's; at the least up to one scale "
+        "c (c M̂⁻¹, V̂/c, D̂/c, Â/c move q exactly alike, `tests/test_velocity.py`), so the direct "
+        "residuals of M, M⁻¹, D, G, A measure where training left that scale, not the fit. "
+        "M⁻¹G and M⁻¹A u are determined by the data in principle; when the inputs hold the arm "
+        "near equilibrium (A u ≈ G along the data) only their sum is, for either network.", ""]
+    if quick:
+        lines = ["**Quick run**: tiny data and networks, a few epochs; not the results.", "",
+                 *lines]
+    return "\n".join(lines)
+
+
+def run_study(out: Path, *, quick: bool, log, progress=None) -> dict[str, Any]:
+    """The study's entry point (the contract of :mod:`bridge.challenges`)."""
+    t0 = time.perf_counter()
+    out = Path(out)
+    results = {}
+    for task in (QUICK_VARIANTS if quick else VARIANTS):
+        log(f"velocity: {task}")
+        results[task] = _task(task, out / task, quick=quick, log=log, progress=progress)
+    results = _clean(results)
+    figure = out / "velocity.png"
+    _figure(results, figure)
+    seconds = time.perf_counter() - t0
+    rel = f"{out.name}/{figure.name}"
+    return {"title": "3. Hamiltonian networks from velocity data",
+            "markdown": _markdown(results, quick, rel, seconds),
+            "results": {"tasks": results, "targets": _targets(results), "quick": quick,
+                        "target_percent": TARGET_PERCENT},
+            "seconds": seconds}
