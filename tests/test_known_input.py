@@ -71,6 +71,12 @@ def test_model_config_known_input():
                                  known_input=text), key=jax.random.PRNGKey(0))
     assert isinstance(ham.input_map, KnownMatrix)
     np.testing.assert_array_equal(np.asarray(ham.input_map(jnp.ones(2))), A)
+    # with A known, M starts at the data's scale as a whole (diagonal and off-diagonal)
+    small = make_model(ModelConfig(kind="lagrangian", n=2, m=1, input_form="known",
+                                   known_input=text, mass_init=0.004), key=jax.random.PRNGKey(0))
+    L = np.asarray(small.mass.factor(jnp.array([0.3, -0.2])))
+    np.testing.assert_allclose(np.diag(L), np.sqrt(0.004), rtol=0.5)
+    assert np.abs(np.tril(L, -1)).max() < 2 * np.sqrt(0.004)  # unscaled: ~0.8
     prog, n, m = spec_known_input("task4")
     assert (n, m) == (3, 3)
     with pytest.raises(UserError, match="expected one input q of 2 values"):
