@@ -6,10 +6,13 @@ Parts (each in its own process, so that the XLA thread flags apply before jax is
   PCC arms of 1 and 2 segments, batch 10,000, float64, on ONE core (``sched_setaffinity`` and
   XLA's single-thread flags): CasADi's interpreter (``TrueModel.qdd`` batched), CasADi's
   compiled C with ``map`` (serial), the JAX translation (``jit(vmap)``); translate, trace and
-  XLA-compile times; the largest difference JAX - C. ``--segments 4`` adds a 4-segment arm
-  (translate + compile time only).
-* ``simulate``: 1,000 trajectories of 10 s of task5 with fixed-step RK4 in JAX on two cores
-  (two halves run concurrently), and the difference to cvodes on a few of them.
+  XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.kernel` (build time in a
+  fresh cache, per-state time), ``TrueModel.qdd`` on the batch (the kernel); the largest
+  differences. ``--segments 4`` adds a 4-segment arm (kernel build and speed; XLA with
+  ``--xla-segments``).
+* ``simulate``: 1,000 trajectories of 10 s of task5 with fixed-step RK4 on two cores: the
+  batched C kernels (``bridge.exact.simulate`` backend ``"c"``, compiled into a fresh cache)
+  and JAX (two halves run concurrently); the difference to cvodes on a few of them.
 
     python benchmarks/bench_exact.py                 # both parts
     python benchmarks/bench_exact.py --part forward
@@ -49,17 +52,25 @@ def spatial_spec(segments: int):
                           source="benchmark")
 
 
-def _best(fn, repeat=5):
+CPU = {}  # per _best label: the least process CPU time of a call (robust to other load)
+
+
+def _best(fn, repeat=5, label=None):
+    """Least wall time of ``repeat`` calls (after one warm-up); with ``label`` the least
+    process CPU time too (in CPU[label]): on shared cores the wall time includes waiting."""
     fn()
-    best = float("inf")
+    best = cpu = float("inf")
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         fn()
         best = min(best, time.perf_counter() - t0)
+        cpu = min(cpu, time.process_time() - c0)
+    if label is not None:
+        CPU[label] = cpu
     return best
 
 
-def bench_model(spec, batch: int, workdir: Path, speed: bool = True) -> dict:
+def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool = True) -> dict:
     import casadi as ca
     import jax
     import numpy as np
@@ -78,23 +89,47 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True) -> dict:
     q = rng.uniform(-0.3, 0.3, (n, batch))
     qd = rng.uniform(-0.2, 0.2, (n, batch))
     u = rng.uniform(-0.3, 0.3, (m, batch))
-    # batch as the minor axis of every scalar operation (1.5x faster than the leading axis)
-    fb = jax.jit(jax.vmap(lambda a, b, c: prog(a, b, c)[0], in_axes=1, out_axes=1))
-    t0 = time.perf_counter()
-    lowered = fb.lower(q, qd, u)
-    t_trace = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    compiled = lowered.compile()
-    t_compile = time.perf_counter() - t0
     res = {"model": spec.name, "n": n, "m": m, "batch": batch,
            "sx_instructions": prog.n_instructions, "functions_s": t_functions,
-           "translate_s": t_translate, "trace_s": t_trace, "xla_compile_s": t_compile,
-           "translate_and_compile_s": t_translate + t_trace + t_compile}
+           "translate_s": t_translate}
+    got = None
+    if xla:
+        # batch as the minor axis of every scalar operation (1.5x faster than the leading axis)
+        fb = jax.jit(jax.vmap(lambda a, b, c: prog(a, b, c)[0], in_axes=1, out_axes=1))
+        t0 = time.perf_counter()
+        lowered = fb.lower(q, qd, u)
+        t_trace = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        compiled = lowered.compile()
+        t_compile = time.perf_counter() - t0
+        res.update(trace_s=t_trace, xla_compile_s=t_compile,
+                   translate_and_compile_s=t_translate + t_trace + t_compile)
+        got = np.asarray(compiled(q, qd, u))
+        res["jax_per_state_us"] = _best(lambda: compiled(q, qd, u).block_until_ready(),
+                                        label="jax") / batch * 1e6
+        res["jax_cpu_per_state_us"] = CPU["jax"] / batch * 1e6
+    fwd = em.functions["forward"]
+    # the batched C kernel (symbolic.kernel): generate + compile (fresh cache) + run, 1 core
+    from softpinn.symbolic import kernel
+
+    t0 = time.perf_counter()
+    ks = kernel.kernels({"forward": fwd}, directory=workdir / f"kcache_{spec.name}")
+    res["kernel_build_s"] = time.perf_counter() - t0
+    if ks is not None:
+        kf = ks["forward"]
+        res["kernel_flags"] = list(kf.library.flags)
+        res["kernel_compile_s"] = kf.library.compile_seconds
+        res["functions_and_kernel_s"] = t_functions + res["kernel_build_s"]
+        kin = [np.ascontiguousarray(q), np.ascontiguousarray(qd), np.ascontiguousarray(u)]
+        kout = kf.nonzeros_soa(kin, batch)[0]
+        res["kernel_per_state_us"] = _best(lambda: kf.nonzeros_soa(kin, batch),
+                                           label="kernel") / batch * 1e6
+        res["kernel_cpu_per_state_us"] = CPU["kernel"] / batch * 1e6
+        if got is not None:
+            res["kernel_minus_jax_max_rel"] = float(np.max(np.abs(kout - got))
+                                                    / np.max(np.abs(got)))
     if not speed:
         return res
-    got = np.asarray(compiled(q, qd, u))
-    res["jax_per_state_us"] = _best(lambda: compiled(q, qd, u).block_until_ready()) / batch * 1e6
-    fwd = em.functions["forward"]
     cc = codegen.find_compiler()
     if cc:
         out = workdir / spec.name
@@ -104,13 +139,21 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True) -> dict:
         fm = fwd_c.map(batch)
         args = [ca.DM(q), ca.DM(qd), ca.DM(u)]
         ref = np.asarray(fm(*args))
-        res["c_map_per_state_us"] = _best(lambda: fm(*args)) / batch * 1e6
+        res["c_map_per_state_us"] = _best(lambda: fm(*args), label="c") / batch * 1e6
+        res["c_map_cpu_per_state_us"] = CPU["c"] / batch * 1e6
         res["jax_minus_c_max_abs"] = float(np.max(np.abs(got - ref)))
         res["jax_minus_c_max_rel"] = float(np.max(np.abs(got - ref)) / np.max(np.abs(ref)))
-    tm = TrueModel(spec)
+        if ks is not None:
+            res["kernel_minus_c_max_rel"] = float(np.max(np.abs(kout - ref))
+                                                  / np.max(np.abs(ref)))
+    tm = TrueModel(spec, compiled=False)
     small = max(batch // 10, 1)
     qt, qdt, ut = q[:, :small].T.copy(), qd[:, :small].T.copy(), u[:, :small].T.copy()
     res["interpreter_truemodel_per_state_us"] = _best(lambda: tm.qdd(qt, qdt, ut), 2) / small * 1e6
+    tm = TrueModel(spec)  # batched calls: the kernel (compiled into the default cache)
+    qb, qdb, ub = q.T.copy(), qd.T.copy(), u.T.copy()
+    res["truemodel_batched_per_state_us"] = _best(lambda: tm.qdd(qb, qdb, ub)) / batch * 1e6
+    res["truemodel_batched_path"] = "kernel" if tm._kernels.get("forward") else "casadi"
     return res
 
 
@@ -122,13 +165,14 @@ def part_forward(args) -> dict:
     from softpinn.symbolic import load_spec
 
     out = {"threads": 1, "xla_flags": os.environ.get("XLA_FLAGS"), "jax": jax.__version__,
-           "models": []}
+           "load_average_before": os.getloadavg(), "models": []}
     with tempfile.TemporaryDirectory() as tmp:
         for spec in (load_spec("task5"), planar_spec(1), planar_spec(2)):
             out["models"].append(bench_model(spec, args.batch, Path(tmp)))
         if args.segments:
             out["models"].append(bench_model(spatial_spec(args.segments), args.batch,
-                                             Path(tmp), speed=False))
+                                             Path(tmp), speed=False, xla=args.xla_segments))
+    out["load_average_after"] = os.getloadavg()
     return out
 
 
@@ -151,7 +195,43 @@ def part_simulate(args) -> dict:
     K = args.trajectories
     x0, sigs = draw_trajectories(data_config(spec), spec.n, spec.m, list(range(K)),
                                  duration=args.duration)
-    cfg = SimulationConfig(integrator="rk4", duration=args.duration, rate=50.0, dt=args.dt)
+    cfg = SimulationConfig(integrator="rk4", duration=args.duration, rate=50.0, dt=args.dt,
+                           threads=2)
+    few = list(range(4))
+    cv = simulate(functions(spec), x0[few], [sigs[i] for i in few],
+                  SimulationConfig(integrator="cvodes", duration=args.duration, rate=50.0))
+    out = {"model": "task5", "trajectories": K, "duration_s": args.duration, "dt": args.dt,
+           "steps": int(round(args.duration / args.dt)), "threads": 2,
+           "load_average_before": os.getloadavg()}
+    xc = None
+    if "c" in args.sim_backends:
+        # the batched C kernels through the user path (bridge.exact.simulate, backend "c"):
+        # compile into a fresh cache, RK4 in C on 2 threads, then qdd, p, M and the checks
+        from softpinn.bridge.exact import simulate as exact_simulate
+
+        with tempfile.TemporaryDirectory() as cache:
+            os.environ["SOFTPINN_CACHE"] = cache
+            t0 = time.perf_counter()
+            res = exact_simulate(em, x0, sigs, cfg, backend="c")
+            total = time.perf_counter() - t0
+            # again from the cache: the run alone, wall and process CPU (2 threads)
+            t0, c0 = time.perf_counter(), time.process_time()
+            again = exact_simulate(em, x0, sigs, cfg, backend="c")
+            rerun_s, rerun_cpu = time.perf_counter() - t0, time.process_time() - c0
+        xc = res.x
+        out["c"] = {"total_s": total, "compile_s": res.info["compile_seconds"],
+                    "cached_rerun_s": rerun_s, "cached_rerun_cpu_s": rerun_cpu,
+                    "cached_rerun_integrate_s": again.info["integrate_seconds"],
+                    "rerun_identical": bool(np.array_equal(again.x, res.x)),
+                    "integrate_s": res.info["integrate_seconds"] - res.info["compile_seconds"],
+                    "postprocess_s": res.info["postprocess_seconds"],
+                    "flags": res.info.get("compiler_flags"),
+                    "finite": bool(np.all(np.isfinite(xc))),
+                    "max_abs_diff_to_cvodes_4_trajectories": float(np.max(np.abs(xc[few]
+                                                                                 - cv.x)))}
+        out["load_average_after_c"] = os.getloadavg()
+    if "jax" not in args.sim_backends:
+        return out
     run = rk4_program(em, sigs[0], cfg)
     p = np.stack([s.params() for s in sigs], axis=1)
     halves = np.array_split(np.arange(K), 2)
@@ -165,14 +245,13 @@ def part_simulate(args) -> dict:
                                                            jnp.asarray(p[:, h]))), halves))
     t_run = time.perf_counter() - t0
     x = np.concatenate(outs, axis=2).transpose(2, 0, 1)
-    few = list(range(4))
-    cv = simulate(functions(spec), x0[few], [sigs[i] for i in few],
-                  SimulationConfig(integrator="cvodes", duration=args.duration, rate=50.0))
-    return {"model": "task5", "trajectories": K, "duration_s": args.duration, "dt": args.dt,
-            "steps": int(round(args.duration / args.dt)), "threads": 2,
-            "compile_s": t_compile, "simulate_s": t_run, "total_s": t_compile + t_run,
-            "finite": bool(np.all(np.isfinite(x))),
-            "max_abs_diff_to_cvodes_4_trajectories": float(np.max(np.abs(x[few] - cv.x)))}
+    out["jax"] = {"compile_s": t_compile, "simulate_s": t_run, "total_s": t_compile + t_run,
+                  "finite": bool(np.all(np.isfinite(x))),
+                  "max_abs_diff_to_cvodes_4_trajectories": float(np.max(np.abs(x[few]
+                                                                               - cv.x)))}
+    if xc is not None:
+        out["max_abs_diff_c_to_jax_all"] = float(np.max(np.abs(xc - x)))
+    return out
 
 
 def main(argv=None) -> int:
@@ -181,9 +260,12 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=10_000)
     ap.add_argument("--segments", type=int, default=4, help="also time a spatial arm of this "
                     "many segments (translate + compile only; 0: none)")
+    ap.add_argument("--xla-segments", action="store_true", help="also XLA-compile the "
+                    "--segments arm (minutes: 167 s for 4 segments)")
     ap.add_argument("--trajectories", type=int, default=1000)
     ap.add_argument("--duration", type=float, default=10.0)
     ap.add_argument("--dt", type=float, default=0.001)
+    ap.add_argument("--sim-backends", default="c,jax", help="simulate part: c, jax or both")
     args = ap.parse_args(argv)
     if args.part == "forward":
         print(json.dumps(part_forward(args), indent=1))
@@ -196,6 +278,8 @@ def main(argv=None) -> int:
         env = dict(os.environ, XLA_FLAGS=flags)
         cmd = [sys.executable, __file__, "--part", part, "--batch", str(args.batch),
                "--segments", str(args.segments), "--trajectories", str(args.trajectories),
+               *(["--xla-segments"] if args.xla_segments else []),
+               "--sim-backends", args.sim_backends,
                "--duration", str(args.duration), "--dt", str(args.dt)]
         res[part] = json.loads(subprocess.run(cmd, env=env, capture_output=True, text=True,
                                               check=True).stdout)
