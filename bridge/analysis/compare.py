@@ -239,8 +239,12 @@ def analyze(
         from ..report.rollouts import coordinate_unit
 
         units = [coordinate_unit(c, spec.kind) for c in names]
-    sweeps = compute_sweeps(true_model, learned_model, q, kind, results, names=names,
-                            units=units)
+    sweeps = None
+    if not isinstance(true_model, MatrixStack | Mapping) and not isinstance(
+            learned_model, MatrixStack | Mapping):  # models, not matrices already evaluated
+        sweeps = compute_sweeps(lambda x: true_matrices(true_model, x),
+                                lambda x: learned_matrices(learned_model, x), q, kind, results,
+                                names=names, units=units)
     meta = {
         "N": true.N,
         "n": true.n,

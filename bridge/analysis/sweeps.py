@@ -11,7 +11,7 @@ side is compared as the report's headline transform says: directly for a Hamilto
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,16 +101,14 @@ def scaled(stack: MatrixStack, c: float) -> MatrixStack:
     return MatrixStack.from_mapping(out, name=stack.name)
 
 
-def compute_sweeps(true_model: Any, learned_model: Any, q: np.ndarray, kind: str | None,
-                   results: Mapping[str, Any], *, names: Sequence[str] | None = None,
-                   units: Sequence[str] | None = None, points: int = POINTS) -> Sweeps | None:
-    """Both models' matrices along :func:`sweep_points` of ``q``; None when no coordinate
-    moves (a single configuration) or the models are given as evaluated matrices."""
-    from .compare import learned_matrices, true_matrices
-
-    if isinstance(true_model, MatrixStack | Mapping) or isinstance(
-            learned_model, MatrixStack | Mapping):
-        return None
+def compute_sweeps(true_at: Callable[[np.ndarray], MatrixStack],
+                   learned_at: Callable[[np.ndarray], MatrixStack], q: np.ndarray,
+                   kind: str | None, results: Mapping[str, Any], *,
+                   names: Sequence[str] | None = None, units: Sequence[str] | None = None,
+                   points: int = POINTS) -> Sweeps | None:
+    """Both models' matrices (``true_at(q)``, ``learned_at(q)`` for configurations (P, n))
+    along :func:`sweep_points` of ``q``; None when no coordinate moves (a single
+    configuration)."""
     lines = sweep_points(q, points=points)
     if not lines:
         return None
@@ -120,6 +118,5 @@ def compute_sweeps(true_model: Any, learned_model: Any, q: np.ndarray, kind: str
     sweeps = []
     for j, line in lines:
         label = f"{names[j]} [{units[j]}]" if units[j] else names[j]
-        sweeps.append(Sweep(j, label, line, true_matrices(true_model, line),
-                            scaled(learned_matrices(learned_model, line), c)))
+        sweeps.append(Sweep(j, label, line, true_at(line), scaled(learned_at(line), c)))
     return Sweeps(tuple(sweeps), transform, c, kind)
