@@ -39,14 +39,14 @@ import numpy as np
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
+#: Today's prediction errors of the Lagrangian network (RESULTS.md, "Paper tasks: full runs":
+#: task 4 over 5 s, task 5's 100 Hz data over 10 s), the issue's bar for the label runs.
+TODAY = {"task4": 2.4e-3, "task5": 8.5e-3}
 #: The cases of each form: (name, task, M started at the data's scale). The quick form checks
-#: the study on task 4 alone. Today's Lagrangian network starts M near 1 on its diagonal (task
-#: 4's true M is about 0.0057): at these budgets it stays far from the data's scale, so the full
-#: form trains each task a second time with M started there (``ModelConfig.mass_init``, from the
-#: data's p = M q̇; every run of the case alike, labels or not).
-TASKS = {"full": (("task4", "task4", False), ("task5", "task5", False),
-                  ("task4, M from the data", "task4", True),
-                  ("task5, M from the data", "task5", True)),
+#: the study on task 4 alone. (Task 4 with M started at the data's scale, 0.0057, and the other
+#: networks at theirs: the first losses were 1e41 and 80 epochs never came back below 1e9, so
+#: the option stays for other budgets, not in the full form.)
+TASKS = {"full": (("task4", "task4", False), ("task5", "task5", False)),
          "quick": (("task4", "task4", False),)}
 #: The data variant each task's study trains on.
 VARIANT = {"task4": "main", "task5": "100Hz"}
@@ -364,6 +364,8 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str) -> str:
                 f"| {run['prediction_error']:.2e} ({run['horizon_s']:g} s) "
                 f"| {'–' if ts is None else f'{ts:.0f} s'} |")
         lines.append("")
+    lines += ["Today's prediction errors, for comparison (full runs in RESULTS.md, far larger "
+              "budgets): " + ", ".join(f"{t} {v:.1e}" for t, v in TODAY.items()) + ".", ""]
     lines += [f"![residual against label count]({figure})", ""]
     if quick:
         lines += ["(quick run: tiny budgets; the numbers check the study, not the remedy)", ""]
@@ -383,11 +385,13 @@ def _targets(results: dict[str, Any]) -> list[dict[str, Any]]:
                         "target": f"≤ {TARGETS[r['task']]:g} %",
                         "measured": f"{worst:.2f} %",
                         "met": bool(worst <= TARGETS[r["task"]])})
+            today = TODAY[r["task"]]
             out.append({"what": f"{task}: {label} labels (K = {best['count']}), prediction "
-                                "error vs no labels",
-                        "target": f"≤ {base['prediction_error']:.2e}",
+                                f"error vs today's full run (no labels here: "
+                                f"{base['prediction_error']:.2e})",
+                        "target": f"≤ {today:.2e}",
                         "measured": f"{best['prediction_error']:.2e}",
-                        "met": bool(best["prediction_error"] <= base["prediction_error"])})
+                        "met": bool(best["prediction_error"] <= today)})
     return out
 
 
