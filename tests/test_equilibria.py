@@ -217,3 +217,30 @@ def test_simulate_equilibria_flag(tmp_path, capsys):
     assert main(["simulate", "task3", "--out", str(tmp_path / "x.npz"), "--equilibria",
                  "-1", "--quiet"]) == 2
     assert "--equilibria" in _error_line(capsys)
+
+
+def test_labels_study_report(tmp_path):
+    """The labels study's table, targets and figure from a results dict of its shape (a
+    diverged rollout's inf included); its training runs are measured in RESULTS.md."""
+    from softpinn.bridge.challenges import labels
+
+    def run(kind, count, m, pred):
+        mats = dict(M=m, D=2 * m, G=m / 2, A=m, M_inv=m, alpha=1.5, alpha_residual=m,
+                    balance_at_pool=1.0, G_at_pool=2.0, samples=40)
+        return {"kind": kind, "count": count, "weights": {}, "matrices": mats,
+                "prediction_error": pred, "horizon_s": 5.0, "best_test_loss": 1e-3,
+                "train_seconds": 3.0}
+
+    runs = {"none": run("none", 0, 100.0, float("inf")),
+            "balance-10": run("balance", 10, 80.0, 2.0),
+            "force-10": run("force", 10, 1.0, 1e-3)}
+    r = {"task": "task4", "mass_init": False, "variant": "main", "epochs": 5, "lbfgs_steps": 0,
+         "samples": 100, "loss": "pair", "counts": {"balance": [10], "force": [10]},
+         "equilibria": {"count": 10, "seconds": 0.1, "max_residual": 1e-12}, "runs": runs}
+    targets = labels._targets({"task4": r})
+    assert [t["met"] for t in targets] == [False, False, True, True]
+    text = labels._markdown({"task4": r}, False, "labels/labels.png")
+    assert "| force | 10 | 1.00 % | 2.00 % | 0.50 % | 1.00 % |" in text
+    assert "| none | 0 |" in text and "inf (5 s)" in text
+    labels._figure({"task4": r}, tmp_path / "labels.png")
+    assert (tmp_path / "labels.png").stat().st_size > 10_000
