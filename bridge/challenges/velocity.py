@@ -227,11 +227,14 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
     data_info = stages.run("data", {"data": plan.data, "variants": [v.name for v in variants]},
                            lambda f: stage_data(spec, plan, f))
     result: dict[str, Any] = {"samples": plan.physics_samples, "variants": {}}
+    result["stage_seconds"] = 0.0
     for variant in variants:
         files = data_info["variants"][variant.name]
         result["variants"][variant.name] = _variant(task, spec, plan, variant, files, stages,
                                                     quick=quick, progress=progress)
         result["variants"][variant.name]["train_pairs_available"] = files["physics"]["samples"]
+    # the time every stage took when it ran (also those reused from an earlier call)
+    result["stage_seconds"] = float(sum(stages.seconds.values()))
     return result
 
 
@@ -261,7 +264,7 @@ def _rows(results: dict[str, Any]):
     for task, r in results.items():
         for variant, models in r["variants"].items():
             for name, _kind, label in MODELS:
-                if name in models:
+                if isinstance(models, dict) and name in models:
                     yield task, variant, name, label, models[name]
 
 
@@ -286,8 +289,11 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax = axes[0, j]
         for i, (name, label) in enumerate(present):
             e = models[name]["prediction_error"]
-            ax.bar(i, e if e is not None and np.isfinite(e) else np.nan, 0.6,
-                   color=colors[name], label=label)
+            ok = e is not None and np.isfinite(e)
+            ax.bar(i, e if ok else np.nan, 0.6, color=colors[name], label=label)
+            if not ok:  # a rollout ran away: no bar to draw
+                ax.annotate("diverged", (i, 0.5), xycoords=("data", "axes fraction"),
+                            ha="center", color=colors[name])
         ax.set_yscale("log")
         ax.set_xticks(range(len(present)), [short[name] for name, _ in present], fontsize=7)
         ax.set_ylabel(f"rollout error, mean ‖q − q̂‖² over {models['lagrangian']['horizon_s']:g} s")
@@ -374,8 +380,10 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         first = next(iter(r["variants"].values()))["lagrangian"]
         budgets.append(f"{task}: {first['epochs']} AdamW epochs + {first['lbfgs_steps']} "
                        f"L-BFGS iterations on {r['samples'] or 'all'} training pairs")
+    staged = sum(r.get("stage_seconds", 0.0) for r in results.values())
     lines += ["Budgets (both networks alike): " + "; ".join(budgets)
-              + f". Wall time {seconds:.0f} s.", ""]
+              + f". Wall time of this call {seconds:.0f} s; its stages took {staged:.0f} s "
+              "when they ran (reused ones included).", ""]
     lines += [
         "What the numbers can say: from (q, q̇) alone the network's M, D, G, A are fixed only "
         "up to the same transform P(q) as a Lagrangian network's; at the least up to one scale "
