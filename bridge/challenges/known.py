@@ -37,7 +37,7 @@ BUDGETS: dict[str, dict[str, Any]] = {
               "samples": 3000, "epochs": 60, "lbfgs": 100},
     "task5": {"data": {"duration": 20.0, "train_trajectories": 6, "test_trajectories": 2,
                        "rates": [100.0]},
-              "samples": 8000, "epochs": 150, "lbfgs": 0},
+              "samples": 8000, "epochs": 600, "lbfgs": 0},
 }
 QUICK = {"task4": {"epochs": 10}, "task5": {"epochs": 8}}
 MODELS = (("learned", "A learned (today)"), ("known", "A known"))
