@@ -22,6 +22,16 @@ import pytest
 from softpinn.symbolic import codegen, outputs
 
 
+@pytest.fixture(autouse=True)
+def ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt here, as in a terminal, even when pytest inherited an
+    ignored SIGINT (a shell starts background jobs with SIGINT ignored, and Python then keeps
+    it ignored)."""
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
 def slow_compiler(tmp_path: Path) -> Path:
     """A fake compiler: writes its pid and its child's pid, then waits for the child (30 s)."""
     script = tmp_path / "slowcc"
