@@ -35,6 +35,8 @@ from .nets import (
     MatrixField,
     ScalarField,
     ZeroMatrix,
+    first_layers,
+    first_layers_transpose,
     make_mlp,
 )
 
@@ -317,10 +319,57 @@ class LagrangianNet(_LagrangianBase):
         ½ ∂(q̇ᵀ M q̇)/∂q = ½ ∂‖Lc(q)ᵀ q̇‖²/∂q = Jᵀ(q̇ wᵀ), one vector-Jacobian product
         (both from one forward pass of the mass network, :func:`_mass_terms`);
     and q̈ by two triangular solves with Lc (no inverse, no factorisation).
+
+    When M and V are the networks of :mod:`learn.nets` (and D, A are networks too, or not
+    networks at all), the sub-networks share ONE product for their first layers, which all
+    read q, and one for their first layers' transposes (∂T/∂q - ∂V/∂q together): the fused
+    pass of :meth:`_fused_qdd`, equal to the separate passes to rounding (the tests hold it to
+    1e-12) and fewer, larger products (see benchmarks/bench_lagrangian.py).
     """
 
     def qdd(self, q, qd, u):
         (q, qd, u) = self._cast(q, qd, u)
+        if self._fusable():
+            return self._fused_qdd(q, qd, u)
+        return self._separate_qdd(q, qd, u)
+
+    def _fusable(self) -> bool:
+        """Whether M and V are the networks of :mod:`learn.nets` (static: decided when traced)."""
+        return isinstance(self.mass, CholeskyField) and isinstance(self.potential, ScalarField)
+
+    def _fused_qdd(self, q, qd, u):
+        """Eq. 6 as :meth:`_separate_qdd`, with the first layers of M, V and of D and A where
+        they are networks computed by one product (:func:`learn.nets.first_layers`), and
+        ∂T/∂q - ∂V/∂q by one transposed product."""
+        nets = [self.mass.mlp, self.potential.mlp]
+        D_net = isinstance(self.damping, CholeskyField)
+        A_net = isinstance(self.input_map, MatrixField)
+        nets += [self.damping.mlp] if D_net else []
+        nets += [self.input_map.mlp] if A_net else []
+        z = first_layers(nets, q)
+        M0 = self.mass.mlp.weights[0]
+        Lc, Ldot, cM = self.mass.factor_derivatives_first(None, qd, first=(z[0], M0 @ qd))
+        _, _, slopes = self.potential.mlp.linearize(None, first=(z[1], None))
+        cV = self.potential.mlp.transpose_to_first(slopes, jnp.ones((1,), q.dtype))
+        # ∂T/∂q - ∂V/∂q = W₀ᵀ_M cM - W₀ᵀ_V cV in one product
+        dT_dq_minus_G = first_layers_transpose(nets[:2], [cM, -cV])
+        w = mtv(Lc, qd)
+        mdot_qd = mv(Ldot, w) + mv(Lc, mtv(Ldot, qd))
+        if D_net:
+            LD = self.damping.factor_from_first(z[2])
+            Dqd = mv(LD, mtv(LD, qd))
+        else:
+            Dqd = _apply(self.damping, q, qd)
+        if A_net:
+            A = self.input_map.mlp.linearize(None, first=(z[-1], None))[0]
+            Au = mv(A.reshape(self.input_map.shape), u)
+        else:
+            Au = _apply(self.input_map, q, u)
+        rhs = Au - mdot_qd + dT_dq_minus_G - Dqd
+        return cho_solve(Lc, rhs)
+
+    def _separate_qdd(self, q, qd, u):
+        """Eq. 6 with each sub-network on its own (any fields that follow the protocol)."""
         Lc, Ldot, dT_dq = _mass_terms(self.mass, q, qd)
         w = mtv(Lc, qd)
         mdot_qd = mv(Ldot, w) + mv(Lc, mtv(Ldot, qd))

@@ -38,6 +38,8 @@ __all__ = [
     "softplus",
     "make_mlp",
     "MLP",
+    "first_layers",
+    "first_layers_transpose",
     "CholeskyField",
     "ConstantCholesky",
     "ScalarField",
@@ -47,10 +49,34 @@ __all__ = [
 ]
 
 
+#: Terms of the series of atanh that :func:`_log1p_unit` sums, per dtype: t ≤ 1/3, so the
+#: k-th term is below 9⁻ᵏ/(2k + 1): 17 terms reach 1e-17 (float64), 8 reach 1e-9 (float32).
+_LOG1P_TERMS = {"float64": 17, "float32": 8, "float16": 5, "bfloat16": 4}
+
+
+def _log1p_unit(e):
+    """log(1 + e) for e in [0, 1], as log1p to the dtype's precision, by 2 atanh(e / (2 + e))
+    summed as a polynomial (Horner) in t² ≤ 1/9.
+
+    XLA's CPU log1p is not vectorised: in float64 it cost 12 ns per element, 5x this series,
+    and softplus runs on every hidden unit of every sub-network at every RK4 stage (1.9 M
+    times per training step of an n = 6 Lagrangian network on 1,024 pairs). Measured against
+    numpy's log1p over 1.7 M normal samples: relative error 6e-16 (float64), 3e-7 (float32).
+    """
+    terms = _LOG1P_TERMS.get(jnp.dtype(e.dtype).name, 17)
+    t = e / (2.0 + e)
+    s = t * t
+    acc = jnp.full_like(s, 1.0 / (2 * terms - 1))
+    for k in range(terms - 2, -1, -1):
+        acc = acc * s + 1.0 / (2 * k + 1)
+    return 2.0 * t * acc
+
+
 @jax.custom_jvp
 def softplus(x):
-    """log(1 + eˣ), written with few primitives; its derivative is the logistic σ(x)."""
-    return jnp.maximum(x, 0) + jnp.log1p(jnp.exp(-jnp.abs(x)))
+    """log(1 + eˣ) = max(x, 0) + log1p(e^-|x|), the log1p by :func:`_log1p_unit`; its derivative
+    is the logistic σ(x)."""
+    return jnp.maximum(x, 0) + _log1p_unit(jnp.exp(-jnp.abs(x)))
 
 
 @softplus.defjvp
@@ -146,25 +172,69 @@ class MLP(eqx.Module):
             h = act(W @ h + b)
         return self.weights[-1] @ h + self.biases[-1]
 
-    def linearize(self, x, v=None):
-        """(y, J v, slopes): output, its derivative along v (None: skipped), and σ'(z) per layer."""
-        h, hd, slopes = x, v, []
-        for W, b in zip(self.weights[:-1], self.biases[:-1], strict=True):
-            z = W @ h + b
+    def linearize(self, x, v=None, *, first=None):
+        """(y, J v, slopes): output, its derivative along v (None: skipped), and σ'(z) per layer.
+
+        ``first``: optional ``(W₀x + b₀, W₀v)`` (the second None when v is), the first layer's
+        products computed elsewhere, e.g. by :func:`first_layers` for several networks that
+        read the same x at once; x and v are then not read.
+        """
+        if first is None:
+            W, b = self.weights[0], self.biases[0]
+            z = W @ x + b
+            zd = None if v is None else W @ v
+        else:
+            z, zd = first
+        if len(self.weights) == 1:
+            return z, zd, ()
+        h, hd, slopes = None, None, []
+        for i, (W, b) in enumerate(zip(self.weights[:-1], self.biases[:-1], strict=True)):
+            if i > 0:
+                z = W @ h + b
+                zd = None if hd is None else W @ hd
             h, s = _value_and_slope(self.activation, z)
             slopes.append(s)
-            if hd is not None:
-                hd = s * (W @ hd)
+            if zd is not None:
+                hd = s * zd
         y = self.weights[-1] @ h + self.biases[-1]
         yd = None if hd is None else self.weights[-1] @ hd
         return y, yd, tuple(slopes)
 
+    def transpose_to_first(self, slopes, g):
+        """The cotangent c on the first layer's product W₀x + b₀ of the output cotangent g, at
+        the point :meth:`linearize` was called with: Jᵀ g = W₀ᵀ c."""
+        if len(self.weights) == 1:
+            return g
+        g = self.weights[-1].T @ g
+        for W, s in zip(reversed(self.weights[1:-1]), reversed(slopes[1:]), strict=True):
+            g = W.T @ (s * g)
+        return slopes[0] * g
+
     def transpose(self, slopes, g):
         """Jᵀ g at the point :meth:`linearize` was called with (reverse pass from its slopes)."""
-        g = self.weights[-1].T @ g
-        for W, s in zip(reversed(self.weights[:-1]), reversed(slopes), strict=True):
-            g = W.T @ (s * g)
-        return g
+        return self.weights[0].T @ self.transpose_to_first(slopes, g)
+
+
+def first_layers(mlps, x):
+    """[W₀x + b₀ of each MLP in ``mlps``], all read from the same x, by ONE product with their
+    first layers' weights stacked (what the fused pass of :class:`learn.models.LagrangianNet`
+    uses for M, V, D and A: one matrix product instead of four small ones)."""
+    W = jnp.concatenate([m.weights[0] for m in mlps], axis=0)
+    b = jnp.concatenate([m.biases[0] for m in mlps], axis=0)
+    z = W @ x + b
+    out, start = [], 0
+    for m in mlps:
+        rows = m.weights[0].shape[0]
+        out.append(z[start : start + rows])
+        start += rows
+    return out
+
+
+def first_layers_transpose(mlps, cotangents):
+    """Σᵢ W₀ᵢᵀ cᵢ for the cotangents cᵢ on the first layers' products of ``mlps`` (see
+    :meth:`MLP.transpose_to_first`), by ONE product with their stacked first-layer weights."""
+    W = jnp.concatenate([m.weights[0] for m in mlps], axis=0)
+    return W.T @ jnp.concatenate(cotangents)
 
 
 class CholeskyField(eqx.Module):
@@ -197,8 +267,18 @@ class CholeskyField(eqx.Module):
         ½ ‖Lᵀ v‖² = ½ vᵀ M v is the kinetic energy for M = L Lᵀ (eq. 6), or the Hamiltonian's
         kinetic term for M⁻¹ = L Lᵀ and v = p (eq. 7).
         """
+        L, Ldot, c = self.factor_derivatives_first(q, v, tangent=tangent)
+        return L, Ldot, self.mlp.weights[0].T @ c
+
+    def factor_derivatives_first(self, q, v, *, tangent=True, first=None):
+        """:meth:`factor_derivatives` up to the network's first layer: (L, L̇, c) with
+        g = W₀ᵀ c. ``first``: the first layer's products ``(W₀q + b₀, W₀v)``, when computed
+        together with other networks' (:func:`first_layers`); q is then not read."""
         n = self.n
-        out, out_dot, slopes = self.mlp.linearize(q, v if tangent else None)
+        if first is None:
+            out, out_dot, slopes = self.mlp.linearize(q, v if tangent else None)
+        else:
+            out, out_dot, slopes = self.mlp.linearize(None, first=first)
         d, sig = _value_and_slope("softplus", out[:n])
         L = lower_from_parts(d + self.eps, out[n:])
         Ldot = None
@@ -207,7 +287,13 @@ class CholeskyField(eqx.Module):
         w = mtv(L, v)
         g_diag, g_off = parts_of_lower(jnp.outer(v, w))
         g_out = jnp.concatenate([sig * g_diag, g_off])
-        return L, Ldot, self.mlp.transpose(slopes, g_out)
+        return L, Ldot, self.mlp.transpose_to_first(slopes, g_out)
+
+    def factor_from_first(self, z0):
+        """The factor L from the first layer's product W₀q + b₀ (see :func:`first_layers`)."""
+        out = self.mlp.linearize(None, first=(z0, None))[0]
+        n = self.n
+        return lower_from_parts(softplus(out[:n]) + self.eps, out[n:])
 
     def matvec(self, q, v):
         """U(q) v = L (Lᵀ v) without forming U."""
