@@ -58,6 +58,10 @@ class TrainConfig:
     all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
     ``clip_norm`` > 0 clips the global gradient norm.
+    ``init``: a run folder whose best model (the same :class:`learn.models.ModelConfig`) every
+    member starts from instead of a fresh initialisation: a warm start, e.g. a run of the
+    acceleration loss (eq. 10, cheap: no RK4 step) before the pair loss (eq. 8/9; issue 18's
+    fast Lagrangian training).
     ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
     ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only; q̈ labels as
     ``accel_labels`` says: "recorded" in the file or "differences" of the velocities) or "rollout"
@@ -90,6 +94,10 @@ class TrainConfig:
     warmup: float = _f(0.02, "optimizer", "warmup fraction of all steps")
     lr_final: float = _f(0.01, "optimizer", "final lr as a fraction of lr")
     weight_decay: float = _f(1e-4, "optimizer", "AdamW weight decay")
+    init: str | None = _f(None, "optimizer", "start from the best model of an earlier run "
+                          "folder with the same network (e.g. one trained with loss accel, "
+                          "eq. 10, as a warm start for the pair loss); default: a fresh, "
+                          "seeded initialisation")
     clip_norm: float = _f(0.0, "optimizer", "global gradient-norm clip (0: none)")
     # loss
     loss: str = _f("pair", "loss", "pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; "
@@ -199,6 +207,8 @@ class TrainConfig:
                 isinstance(self.samples, bool) or not isinstance(self.samples, int)
                 or self.samples < 1):
             raise UserError(f"samples: expected an integer >= 1, got {self.samples!r}")
+        if self.init is not None and (not isinstance(self.init, str) or not self.init):
+            raise UserError(f"init: expected a run folder, got {self.init!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
         if self.accel_labels != "recorded" and self.loss != "accel":

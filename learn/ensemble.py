@@ -88,7 +88,10 @@ class MemberGroup:
         self.ckpt_path = ckpt_path
         self.header_base = header_base
         cfg = prog.config
-        models = [make_model(cfg.model, key=jax.random.PRNGKey(s)) for s in self.seeds]
+        if cfg.init is not None:
+            models = [initial_model(cfg.init, cfg.model)] * self.K
+        else:
+            models = [make_model(cfg.model, key=jax.random.PRNGKey(s)) for s in self.seeds]
         self.params = stack([eqx.filter(m, eqx.is_array) for m in models])
         self.opt_state = prog.init_opt(self.params)
         self.best = self.params
@@ -354,6 +357,22 @@ class MemberGroup:
     def member_model(self, k: int):
         return eqx.combine(unstack(self.best, k), self.prog.static)
 
+
+
+def initial_model(run_dir: str, model_config):
+    """The best model of the run in ``run_dir`` (``TrainConfig.init``), which must have the
+    network ``model_config``."""
+    from .rundir import load_run
+
+    if not Path(run_dir).is_dir():
+        raise UserError(f"init: {run_dir} is not a run folder")
+    run = load_run(run_dir)
+    if run.model_config != model_config:
+        theirs, ours = run.model_config.to_dict(), model_config.to_dict()
+        diff = sorted(k for k in ours if theirs.get(k) != ours[k])
+        raise UserError(f"init: the run in {run_dir} has another network (differs in "
+                        f"{', '.join(diff)})")
+    return run.model
 
 
 def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test) -> MemberResult:

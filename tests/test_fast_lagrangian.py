@@ -4,6 +4,8 @@ polynomial log1p inside softplus matches log(1 + eˣ) in float32 and float64."""
 
 from __future__ import annotations
 
+import json
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -146,3 +148,43 @@ def test_softplus_derivative_is_logistic(dtype):
     d2 = jax.vmap(jax.grad(jax.grad(softplus)))(x)
     s = jax.nn.sigmoid(x)
     np.testing.assert_allclose(d2, s * (1 - s), rtol=100 * tol, atol=tol)
+
+
+def test_train_init_warm_start(tmp_path, capsys):
+    """``TrainConfig.init`` / ``softpinn train --init RUN``: an acceleration-loss run (eq. 10)
+    warm-starts a pair-loss run (eq. 8), which starts from its best model, not a fresh one."""
+    from datagen import make_dataset, tiny_model_config
+
+    from softpinn.bridge.cli import main
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.rundir import load_run
+    from softpinn.learn.train import TrainConfig, train
+
+    data = make_dataset(tmp_path / "msd.npz", trajectories=3, duration=2.0, rate=20.0)
+    model = tiny_model_config("lagrangian")
+    warm = TrainConfig(model=model, epochs=3, batch_size=32, lr=1e-2, loss="accel",
+                       accel_labels="differences", test_trajectories=(2,), checkpoint_every=100)
+    train(data, warm, tmp_path / "warm", force=True)
+    start = load_run(tmp_path / "warm").model
+    fresh = make_model(model, key=jax.random.PRNGKey(0))
+    # the pair-loss run with a vanishing learning rate ends where it started
+    assert main(["train", str(data), "--model", "lagrangian", "--out", str(tmp_path / "pair"),
+                 "--mass", "16", "1", "--potential", "16", "1", "--damping", "8", "1",
+                 "--input", "8", "1", "--hidden", "16", "2", "--init", str(tmp_path / "warm"),
+                 "--epochs", "1", "--batch-size", "32", "--lr", "1e-14",
+                 "--test-trajectories", "2", "--quiet"]) == 0, capsys.readouterr().err
+    stored = json.loads((tmp_path / "pair" / "config.json").read_text())["train"]
+    assert stored["init"] == str(tmp_path / "warm") and stored["loss"] == "pair"
+    after = load_run(tmp_path / "pair").model
+    a, s, f = (jax.tree_util.tree_leaves(eqx.filter(x, eqx.is_array))
+               for x in (after, start, fresh))
+    for x, y in zip(a, s, strict=True):
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9)
+    assert max(float(jnp.max(jnp.abs(x - y))) for x, y in zip(s, f, strict=True)) > 1e-3
+    # another network is refused
+    other = TrainConfig(model=tiny_model_config("lagrangian", mass=(8, 1)), epochs=1,
+                        test_trajectories=(2,), init=str(tmp_path / "warm"))
+    with pytest.raises(UserError, match="another network"):
+        train(data, other, tmp_path / "other", force=True)
+    with pytest.raises(UserError, match="init"):
+        TrainConfig(model=model, init="")
