@@ -10,7 +10,8 @@ the XLA compile time of the step, and the time of a 5,000-step rollout of one tr
 (one jitted ``lax.scan``; its compile time separately).
 
 Prints one JSON object on stdout (per-row progress on stderr). Ratios (structured vs Hessian
-vs black box) are computed within the run. ``--quick``: n = 6, float32, fewer repetitions.
+vs black box) are computed within the run. ``--quick``: n = 6, float32, fewer repetitions. The
+step timing is :mod:`softpinn.learn.steptime` (shared with ``softpinn reproduce challenges``).
 
     python benchmarks/bench_learn.py --quick
     python benchmarks/bench_learn.py --n 2 3 6 12 --dtypes float64 float32
@@ -22,7 +23,6 @@ import argparse
 import json
 import os
 import platform
-import statistics
 import sys
 import time
 
@@ -32,85 +32,14 @@ jax.config.update("jax_enable_x64", True)
 
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
-import optax  # noqa: E402
 
 from softpinn.learn.integrate import rollout  # noqa: E402
-from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
 from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
-
-KINDS = ("lagrangian", "lagrangian-hessian", "hamiltonian", "blackbox")
-
-
-def _block(tree):
-    jax.tree_util.tree_map(lambda a: a.block_until_ready() if isinstance(a, jax.Array) else a, tree)
-    return tree
-
-
-def _pairs(key, n, m, batch, dtype):
-    ks = jax.random.split(key, 4)
-    dt = jnp.full((batch,), 0.01, dtype)
-    return Pairs(
-        x0=jax.random.normal(ks[0], (batch, 2 * n), dtype),
-        u0=jax.random.normal(ks[1], (batch, m), dtype),
-        u1=jax.random.normal(ks[2], (batch, m), dtype),
-        dt=dt,
-        x1=jax.random.normal(ks[3], (batch, 2 * n), dtype),
-    )
-
-
-def build_train(kind, n, dtype, *, batch, seed=0):
-    """A compiled training step for one model kind; returns (call, state, compile seconds)."""
-    cfg = ModelConfig(kind=kind, n=n, m=n, dtype=dtype)
-    key_model, key_data = jax.random.split(jax.random.PRNGKey(seed))
-    model = make_model(cfg, key=key_model)
-    opt = optax.adamw(1e-3)
-    opt_state = opt.init(eqx.filter(model, eqx.is_array))
-
-    @eqx.filter_jit
-    def train_step(model, opt_state, pairs):
-        loss, grads = eqx.filter_value_and_grad(pair_loss)(model, pairs)
-        updates, opt_state = opt.update(grads, opt_state, eqx.filter(model, eqx.is_array))
-        return eqx.apply_updates(model, updates), opt_state, loss
-
-    pairs = _pairs(key_data, n, n, batch, jnp.dtype(dtype))
-    t0 = time.perf_counter()
-    compiled = train_step.lower(model, opt_state, pairs).compile()
-    compile_s = time.perf_counter() - t0
-    state = {"model": model, "opt_state": opt_state, "loss": None}
-
-    def call():
-        state["model"], state["opt_state"], state["loss"] = _block(
-            compiled(state["model"], state["opt_state"], pairs)
-        )
-
-    call()  # warm-up
-    return call, state, compile_s
-
-
-def bench_train_group(kinds, n, dtype, *, batch, reps):
-    """Compile every kind's step, then time them round-robin so that load noise is shared."""
-    built = {k: build_train(k, n, dtype, batch=batch) for k in kinds}
-    wall = {k: [] for k in kinds}
-    cpu = {k: [] for k in kinds}
-    for _ in range(reps):
-        for k in kinds:
-            t0, c0 = time.perf_counter(), time.process_time()
-            built[k][0]()
-            wall[k].append(time.perf_counter() - t0)
-            cpu[k].append(time.process_time() - c0)
-    out = {}
-    for k in kinds:
-        step_s = statistics.median(wall[k])
-        out[k] = {
-            "step_ms": 1e3 * step_s,
-            "step_ms_min": 1e3 * min(wall[k]),
-            "step_cpu_ms_min": 1e3 * min(cpu[k]),
-            "samples_per_s": batch / step_s,
-            "samples_per_s_best": batch / min(wall[k]),
-            "compile_s": built[k][2],
-            "finite": bool(jnp.isfinite(built[k][1]["loss"])),
-        }
-    return out
+from softpinn.learn.steptime import (  # noqa: E402
+    KINDS,
+    block,
+    time_train_steps,
+)
 
 
 def bench_rollout(kind, n, dtype, *, steps, seed=0):
@@ -122,10 +51,10 @@ def bench_rollout(kind, n, dtype, *, steps, seed=0):
     x0 = 0.1 * jnp.ones(2 * n, dt)
     fn = eqx.filter_jit(lambda model, x0, u, t: rollout(model, x0, u, t))
     t0 = time.perf_counter()
-    _block(fn(model, x0, u, t))
+    block(fn(model, x0, u, t))
     first = time.perf_counter() - t0
     t0 = time.perf_counter()
-    xs = _block(fn(model, x0, u, t))
+    xs = block(fn(model, x0, u, t))
     run = time.perf_counter() - t0
     return {
         "rollout_s": run,
@@ -151,7 +80,7 @@ def main(argv=None):
     results = []
     for dtype in args.dtypes:
         for n in args.n:
-            group = bench_train_group(args.kinds, n, dtype, batch=args.batch, reps=args.reps)
+            group = time_train_steps(args.kinds, n, dtype, batch=args.batch, reps=args.reps)
             for kind in args.kinds:
                 row = {"kind": kind, "n": n, "dtype": dtype, "batch": args.batch, **group[kind]}
                 if not args.no_rollout:
