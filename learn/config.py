@@ -27,8 +27,8 @@ INPUT_HOLDS = ("constant", "linear")
 #: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
 GROUPS = ("budget", "optimizer", "loss", "split", "ensemble", "devices")
 #: Settings that may change when a run is resumed (the others would make it another run).
-RESUMABLE = ("epochs", "patience", "eval_every", "checkpoint_every", "lbfgs_steps", "lbfgs_chunk",
-             "devices")
+RESUMABLE = ("epochs", "patience", "target_loss", "eval_every", "checkpoint_every", "lbfgs_steps",
+             "lbfgs_chunk", "devices")
 
 
 def _f(default, group: str, help: str, choices: tuple[str, ...] | None = None):
@@ -76,7 +76,9 @@ class TrainConfig:
     ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (20%);
     ``split_seed`` draws the split and the ``samples`` subset of training pairs (None: all).
     ``patience``: stop a member after that many evaluations without a better test loss (None:
-    never); the saved model is the one with the best test loss. ``eval_every``: epochs between
+    never); the saved model is the one with the best test loss. ``target_loss``: stop a member
+    once its test loss is at or below it, in AdamW or L-BFGS (None: never; the time to reach a
+    loss, as RESULTS.md's training-speed comparisons measure it). ``eval_every``: epochs between
     test-loss evaluations. ``checkpoint_every``: epochs between checkpoints.
     ``lbfgs_steps``: L-BFGS iterations on the full training set after AdamW (0: none), starting
     from the best AdamW parameters, in calls of ``lbfgs_chunk`` iterations.
@@ -135,6 +137,8 @@ class TrainConfig:
     # budget, continued (may change on resume)
     patience: int | None = _f(None, "budget", "early-stopping patience in evaluations "
                               "(default: none)")
+    target_loss: float | None = _f(None, "budget", "stop a member once its test loss is at or "
+                                   "below X, in AdamW or L-BFGS (default: none)")
     eval_every: int = _f(1, "budget", "evaluate the test loss every N epochs")
     checkpoint_every: int = _f(25, "budget", "write a checkpoint every N epochs")
     lbfgs_steps: int = _f(0, "budget", "L-BFGS iterations after AdamW (0: none)")
@@ -203,6 +207,11 @@ class TrainConfig:
                 isinstance(self.patience, bool) or not isinstance(self.patience, int)
                 or self.patience < 1):
             raise UserError(f"patience: expected an integer >= 1, got {self.patience!r}")
+        if self.target_loss is not None and (
+                isinstance(self.target_loss, bool)
+                or not isinstance(self.target_loss, int | float)
+                or not math.isfinite(self.target_loss) or self.target_loss <= 0):
+            raise UserError(f"target_loss: expected a number > 0, got {self.target_loss!r}")
         if self.samples is not None and (
                 isinstance(self.samples, bool) or not isinstance(self.samples, int)
                 or self.samples < 1):

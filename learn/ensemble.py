@@ -204,6 +204,12 @@ class MemberGroup:
                     for k in np.flatnonzero(out):
                         self.stopped[k] = f"early stop at epoch {epoch} (patience {cfg.patience})"
                     self.active = self.active & ~out
+            if cfg.target_loss is not None:
+                out = self.active & (test_loss <= cfg.target_loss)
+                for k in np.flatnonzero(out):
+                    self.stopped[k] = (f"reached test loss {test_loss[k]:.4g} <= "
+                                       f"{cfg.target_loss:g} at epoch {epoch} ({phase})")
+                self.active = self.active & ~out
         for k in range(self.K):
             if bad_now[k] or not was_active[k]:
                 continue
@@ -285,8 +291,9 @@ class MemberGroup:
         cfg, prog = self.prog.config, self.prog
         # an interrupted L-BFGS phase restarts from the best parameters so far
         self.history = [[r for r in h if r["phase"] != "lbfgs"] for h in self.history]
-        # start from the best AdamW parameters of every member that did not diverge
-        ok = np.array([not s.startswith("diverged") for s in self.stopped])
+        # start from the best AdamW parameters of every member that did not diverge or reach
+        # the target test loss already
+        ok = np.array([not s.startswith(("diverged", "reached")) for s in self.stopped])
         self.params = self.best
         state = prog.lbfgs_init(self.params)
         active = ok.copy()
@@ -305,8 +312,8 @@ class MemberGroup:
             t_last = now
             self.active = active
             epoch = self.epoch + done // cfg.lbfgs_chunk
-            bad_now = self._record(epoch, tr, te, "lbfgs", True, prev_p, prev_p)
-            active = active & ~bad_now
+            self._record(epoch, tr, te, "lbfgs", True, prev_p, prev_p)
+            active = self.active.copy()  # less the diverged and those at the target loss
             if progress is not None:
                 progress(self._progress_info(label, epoch, tr, te, "lbfgs", lbfgs_done=done))
         self.active = np.zeros(self.K, dtype=bool)

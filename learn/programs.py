@@ -398,6 +398,7 @@ class ProgramCache:
         "split_seed",
         "samples",
         "patience",
+        "target_loss",
         "eval_every",
         "checkpoint_every",
         "lbfgs_steps",

@@ -124,6 +124,10 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
     assert "--epochs: expected an integer >= 1, got 0" in _error_line(capsys)
     assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN, "--lr", "nan"]) == 2
     assert "--lr: expected a finite number > 0, got nan" in _error_line(capsys)
+    assert main(["train", str(data), "--out", str(tmp_path / "x"), *TRAIN,
+                 "--target-loss", "0"]) == 2
+    assert "--target-loss: expected a number > 0, got 0.0" in _error_line(capsys)
+    assert not (tmp_path / "x").exists()
     assert main(["predict", str(run), str(data), "--horizon", "-1"]) == 2
     assert "--horizon: expected a positive number of seconds" in _error_line(capsys)
     assert main(["predict", str(tmp_path / "nope"), str(data), "--horizon", "1"]) == 2

@@ -232,6 +232,38 @@ def test_early_stopping_keeps_best(msd, tmp_path):
     assert hist[-1]["epoch"] - m["best_epoch"] == 2
 
 
+def test_target_loss_stops_a_member_when_reached(msd, tmp_path):
+    # a first run gives the loss curve; a target between its start and its best stops the
+    # same run (same seed and settings) at the first evaluation at or below it
+    free = train(msd, blackbox_train_config(), tmp_path / "free").members[0].history
+    target = 0.5 * (free[0]["test_loss"] + min(r["test_loss"] for r in free))
+    first = next(r for r in free if r["test_loss"] <= target)
+    res = train(msd, blackbox_train_config(target_loss=target), tmp_path / "t")
+    m = res.members[0].metrics
+    assert m["stopped"].startswith(f"reached test loss {first['test_loss']:.4g} <= {target:g} "
+                                   f"at epoch {first['epoch']} (adamw)")
+    assert res.members[0].history[-1]["epoch"] == first["epoch"] < free[-1]["epoch"]
+    # a member that reached its target in AdamW does not go on to L-BFGS
+    res = train(msd, blackbox_train_config(target_loss=target, lbfgs_steps=20), tmp_path / "tl")
+    assert [r["phase"] for r in res.members[0].history].count("lbfgs") == 0
+    # and one that reaches it in L-BFGS stops there, before its budget
+    adam_best = min(r["test_loss"] for r in free)
+    lb = train(msd, blackbox_train_config(lbfgs_steps=40), tmp_path / "lb").members[0].history
+    lb_hist = [r for r in lb if r["phase"] == "lbfgs"]
+    goal = 0.5 * (adam_best + min(r["test_loss"] for r in lb_hist))
+    assert goal < adam_best  # L-BFGS improves on AdamW here: the goal is reached in L-BFGS
+    res = train(msd, blackbox_train_config(lbfgs_steps=40, target_loss=goal), tmp_path / "g")
+    m = res.members[0].metrics
+    assert m["stopped"].endswith("(lbfgs)") and m["best_test_loss"] <= goal
+    assert len([r for r in res.members[0].history if r["phase"] == "lbfgs"]) < len(lb_hist)
+
+
+@pytest.mark.parametrize("bad", [0.0, -1e-3, float("nan"), float("inf"), True, "1e-3"])
+def test_target_loss_refuses_what_is_not_a_positive_number(bad):
+    with pytest.raises(UserError, match=r"^target_loss: expected a number > 0, got"):
+        blackbox_train_config(target_loss=bad)
+
+
 def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
     cfg = blackbox_train_config(lbfgs_steps=20)
     infos = []

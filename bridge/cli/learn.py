@@ -74,7 +74,7 @@ def add_setting_flags(parser, *, skip=_CUSTOM, title=str, split_flags=_split_fla
                 kw["choices"] = f.metadata["choices"]
             else:
                 kw["type"] = hint
-                kw["metavar"] = "N" if hint is int else "X"
+                kw["metavar"] = "N" if hint is int else ("RUN" if f.name == "init" else "X")
             g.add_argument(f"--{f.name.replace('_', '-')}", **kw)
         if group == "split":
             split_flags(g)

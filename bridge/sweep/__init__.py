@@ -346,6 +346,8 @@ def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> di
             status = "diverged"
         elif stopped.startswith("early stop"):
             status, stopped_early = "early stop (patience)", True
+        elif stopped.startswith("reached"):
+            status = "reached the target loss"
         elif stopped == "running":
             stopped_early = True
             status = (f"stopped by ASHA at epoch {metrics.get('epochs_run')}"
