@@ -36,8 +36,11 @@ def setting_warnings(config, data: Dataset, n_train: int, batch: int) -> list[st
             f"{better} makes {n_train // better}"
         )
     model = config.model
-    # a Hamiltonian network on (q, q̇) has no scale to keep: any c M⁻¹ fits (learn/velocity.py)
-    if (model.kind in ("lagrangian", "lagrangian-hessian", "hamiltonian") and data.p is not None
+    # a Hamiltonian network on (q, q̇) has no scale to keep: any c M⁻¹ fits (learn/velocity.py);
+    # a network started from an earlier run (init) does not start at mass_init
+    if (config.init is None
+            and model.kind in ("lagrangian", "lagrangian-hessian", "hamiltonian")
+            and data.p is not None
             and model.state_kind == ("momentum" if model.kind == "hamiltonian" else "velocity")):
         what = "M⁻¹" if model.kind == "hamiltonian" else "M"
         scale = mass_scale(data, model.kind)

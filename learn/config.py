@@ -86,7 +86,8 @@ class TrainConfig:
 
     model: ModelConfig
     # budget
-    epochs: int = _f(1000, "budget", "passes over the training pairs (AdamW)")
+    epochs: int = _f(1000, "budget", "passes over the training pairs (AdamW; 0 with "
+                     "--lbfgs-steps: L-BFGS alone, e.g. from --init)")
     batch_size: int | None = _f(None, "budget", "minibatch size (pairs per optimizer step; "
                                 "default: max(64, pairs // 100))")
     # optimizer
@@ -156,7 +157,6 @@ class TrainConfig:
             raise UserError(f"batch_size: expected an integer >= 1 or None (auto), got "
                             f"{self.batch_size!r}")
         pos_int = (
-            "epochs",
             "substeps",
             "seeds",
             "eval_every",
@@ -167,6 +167,11 @@ class TrainConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
+        if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 0 \
+                or (self.epochs == 0 and not (isinstance(self.lbfgs_steps, int)
+                                              and self.lbfgs_steps > 0)):
+            raise UserError(f"epochs: expected an integer >= 1, got {self.epochs!r} (0 trains "
+                            "by L-BFGS alone, with lbfgs_steps > 0)")
         for name in ("lbfgs_steps", "seed", "split_seed", "devices"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:

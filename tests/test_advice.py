@@ -44,6 +44,8 @@ def test_mass_far_from_the_data_warns(tmp_path, data):
     assert "M⁻¹ starts near 1" in msg
     scale = mass_scale(heavy, "lagrangian")
     assert setting_warnings(_cfg(mass_init=scale), heavy, 1000, 64) == []
+    # a network started from an earlier run's model does not start at mass_init: no advice
+    assert setting_warnings(_cfg(init=str(tmp_path)), heavy, 1000, 64) == []
 
 
 def test_train_logs_and_the_cli_prints_the_flag(data, tmp_path, capsys, caplog):

@@ -296,6 +296,22 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
         blackbox_train_config(loss="accel", model=tiny_model_config("hamiltonian"))
 
 
+def test_lbfgs_alone_from_an_earlier_run(msd, tmp_path):
+    # epochs 0 with L-BFGS iterations: no AdamW step, L-BFGS from the --init model
+    first = train(msd, blackbox_train_config(), tmp_path / "a")
+    res = train(msd, blackbox_train_config(epochs=0, lbfgs_steps=20, init=str(tmp_path / "a")),
+                tmp_path / "b")
+    hist = res.members[0].history
+    assert [r["phase"] for r in hist] == ["adamw", "lbfgs", "lbfgs"]
+    assert hist[0]["test_loss"] == pytest.approx(first.metrics["best_test_loss"]["mean"],
+                                                 rel=1e-9)
+    assert res.members[0].metrics["epochs_run"] == 0
+    assert res.metrics["best_test_loss"]["mean"] < hist[0]["test_loss"]
+    with pytest.raises(UserError, match=r"epochs: expected an integer >= 1, got 0 \(0 trains "
+                                        r"by L-BFGS alone, with lbfgs_steps > 0\)"):
+        blackbox_train_config(epochs=0)
+
+
 def test_bad_config_values():
     with pytest.raises(UserError, match="epochs: expected an integer >= 1, got 0"):
         blackbox_train_config(epochs=0)

@@ -57,7 +57,8 @@ class TrainBar:
     def start(self):
         from tqdm.auto import tqdm
 
-        self.bar = tqdm(total=self.total, file=sys.stderr, disable=self.disable,
+        # no AdamW epochs (epochs 0: L-BFGS alone): the L-BFGS bar is the only one
+        self.bar = tqdm(total=self.total, file=sys.stderr, disable=self.disable or not self.total,
                         unit="epoch", dynamic_ncols=True, desc="compiling")
         self.compiling = True
 
