@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from . import json_ready
+
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
 #: The data variant each task's study trains on.
@@ -146,19 +148,6 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
     return result
 
 
-def _clean(x):
-    """JSON-ready: non-finite floats as None."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
-    if isinstance(x, float | np.floating):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def _fmt(x) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
@@ -249,7 +238,7 @@ def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
     _figure(results, figure)
     rel = f"{out.name}/{figure.name}"
     seconds = time.perf_counter() - t0
-    payload = _clean({"tasks": results, "targets": _targets(results), "quick": quick,
+    payload = json_ready({"tasks": results, "targets": _targets(results), "quick": quick,
                "budgets": {"quick": QUICK} if quick else {"full": BUDGETS}})
     (out / "results.json").write_text(json.dumps(payload, indent=1, allow_nan=False))
     return {"title": "2a. The ideal Lagrangian solution: a known actuator model",

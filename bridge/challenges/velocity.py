@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from . import json_ready
+
 #: Issue 18's target for task 5: matrices within this many percent of the truth, directly.
 TARGET_PERCENT = 5.0
 #: The data variants each task's study trains on (task 5: the paper's three rates).
@@ -238,19 +240,6 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
     return result
 
 
-def _clean(x):
-    """JSON-ready: non-finite floats as None."""
-    if isinstance(x, dict):
-        return {k: _clean(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_clean(v) for v in x]
-    if isinstance(x, float | np.floating):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x
-
-
 def _fmt(x, digits: int = 3) -> str:
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
@@ -405,7 +394,7 @@ def run_study(out: Path, *, quick: bool, log, progress=None) -> dict[str, Any]:
     for task in (QUICK_VARIANTS if quick else VARIANTS):
         log(f"velocity: {task}")
         results[task] = _task(task, out / task, quick=quick, log=log, progress=progress)
-    results = _clean(results)
+    results = json_ready(results)
     figure = out / "velocity.png"
     _figure(results, figure)
     seconds = time.perf_counter() - t0

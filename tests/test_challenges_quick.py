@@ -1,0 +1,89 @@
+"""`softpinn reproduce challenges --quick` end to end: every study of issue 18 (fast Lagrangian
+training, a known actuator model, equilibrium and force labels, Hamiltonian networks from
+velocity data) runs its quick form, the report links figures that exist, every target is
+reported as met or missed, and a second call reuses the finished studies.
+
+The quick forms train tiny networks for a few epochs: their numbers are not the studies'
+results (RESULTS.md has those); this test checks that the whole path works as a user runs it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import pytest
+
+from softpinn.bridge.challenges.pipeline import STUDIES
+from softpinn.bridge.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("challenges") / "out"
+    assert main(["reproduce", "challenges", "--quick", "--quiet", "--out", str(out)]) == 0
+    return out
+
+
+def test_every_study_reports_its_targets(quick_run):
+    results = json.loads((quick_run / "results.json").read_text())
+    assert results["task"] == "challenges" and results["quick"] is True
+    assert list(results["studies"]) == [name for name, _ in STUDIES]
+    for name, study in results["studies"].items():
+        assert study["seconds"] > 0, name
+        targets = study["results"].get("targets")
+        assert targets, f"{name} reports no targets"
+        for t in targets:
+            assert {"what", "target", "measured", "met"} <= set(t), (name, t)
+            assert t["met"] in (True, False), (name, t)
+        assert (quick_run / name / "study.json").is_file()
+
+
+def test_report_has_every_section_and_its_figures_exist(quick_run):
+    report = (quick_run / "report.md").read_text()
+    assert "**This is a quick run**" in report
+    for _, title in STUDIES:
+        assert f"## {title}" in report
+    assert "| challenge | what | target | measured | |" in report
+    links = re.findall(r"\]\(([^)\s]+\.(?:png|pdf|md|json))\)", report)
+    assert links, "the report links no figures"
+    for link in links:
+        assert (quick_run / link).is_file(), f"report.md links {link}, which is missing"
+    assert not re.search(r"\bnan\b", report.lower()), "the report shows a NaN"
+
+
+def test_fast_training_study_measures_what_it_reports(quick_run):
+    """Challenge 1: the per-step ratio is the ratio of the two measured step times, the level of
+    the time-to-loss comparison is today's best test loss, and the warm start is a real start."""
+    res = json.loads((quick_run / "fast" / "results.json").read_text())
+    row = res["steps"]["n"]["6"]
+    st, he = (row["kinds"][k]["step_ms"] for k in ("lagrangian", "lagrangian-hessian"))
+    assert st > 0 and he > 0 and all(v["finite"] for v in row["kinds"].values())
+    assert math.isclose(row["over_structured"]["lagrangian-hessian"], he / st)
+    ttl = res["time_to_loss"]
+    assert ttl["level"] == ttl["runs"]["today"]["best_test_loss"] > 0
+    assert 0 < ttl["today_s"] <= ttl["runs"]["today"]["train_s"]
+    assert ttl["warm_s"] > 0 and ttl["runs"]["fast"]["train_s"] > 0
+    if ttl["fast_s"] is not None:
+        assert ttl["fast_s"] >= ttl["warm_s"]
+        assert math.isclose(ttl["speedup"], ttl["today_s"] / ttl["fast_s"])
+    # the pair run starts from the warm start's model, not from a fresh initialisation
+    assert ttl["warm_start_test_loss"] != ttl["fresh_start_test_loss"]
+    first = res["targets"][0]
+    assert first["what"].startswith("Hessian / structured step time, n = 6")
+    assert first["met"] == (row["over_structured"]["lagrangian-hessian"] >= 4.0)
+    assert (quick_run / "fast" / "time_to_loss.png").is_file()
+
+
+def test_a_second_call_reuses_the_finished_studies(quick_run, capsys):
+    before = (quick_run / "results.json").read_text()
+    assert main(["reproduce", "challenges", "--quick", "--out", str(quick_run)]) == 0
+    err = capsys.readouterr().err
+    for name, _ in STUDIES:
+        assert f"{name}: finished earlier, reused" in err
+    after = json.loads((quick_run / "results.json").read_text())
+    assert {n: s["results"] for n, s in after["studies"].items()} == \
+        {n: s["results"] for n, s in json.loads(before)["studies"].items()}
