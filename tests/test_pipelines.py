@@ -1,4 +1,6 @@
-"""The five paper tasks end to end on quick settings, and the reproduce/analyze CLI."""
+"""The five paper tasks end to end on quick settings, the reproduce/analyze CLI, and every task
+notebook executed on the same runs (one module: the suite's xdist workers take whole modules,
+and these tests share the session's quick runs)."""
 
 from __future__ import annotations
 
@@ -7,8 +9,11 @@ import math
 import re
 from pathlib import Path
 
+import nbformat
 import numpy as np
 import pytest
+from conftest import QUICK_EPOCHS
+from nbclient import NotebookClient
 
 from softpinn.bridge.cli import main
 from softpinn.bridge.tasks import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
@@ -333,3 +338,31 @@ def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
     bb = result.out_dir / "train" / "main" / "blackbox" / "run"
     assert main(["analyze", str(bb), "task1", "--out", str(tmp_path / "e")]) == 2
     assert "black-box" in _err(capsys)
+
+
+# ------------------------------------------------------------------ the notebooks
+
+NOTEBOOKS = sorted((Path(__file__).parent.parent / "notebooks").glob("task*.ipynb"))
+CONTROL = Path(__file__).parent.parent / "notebooks" / "control.ipynb"
+
+
+def test_one_notebook_per_task():
+    assert [p.stem for p in NOTEBOOKS] == ["task1", "task2", "task3", "task4", "task5"]
+
+
+@pytest.mark.parametrize("path", [*NOTEBOOKS, CONTROL], ids=lambda p: p.stem)
+def test_notebook_executes(path, quick_runs, monkeypatch):
+    # the notebook then finds every stage done and only reports (control: task3's runs)
+    quick_runs("task3" if path == CONTROL else path.stem)
+    monkeypatch.setenv("SOFTPINN_OUT", str(quick_runs.root))
+    monkeypatch.setenv("SOFTPINN_QUICK", "1")
+    monkeypatch.setenv("SOFTPINN_EPOCHS", str(QUICK_EPOCHS))
+    monkeypatch.setenv("SOFTPINN_LBFGS", "0")
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    nb = nbformat.read(path, as_version=4)
+    NotebookClient(nb, timeout=600, kernel_name="python3",
+                   resources={"metadata": {"path": str(path.parent)}}).execute()
+    outputs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+    assert not [o for o in outputs if o.get("output_type") == "error"]
+    images = [o for o in outputs if "image/png" in o.get("data", {})]
+    assert len(images) >= 3
