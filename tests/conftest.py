@@ -14,6 +14,18 @@ jax.config.update("jax_enable_x64", True)
 
 
 @pytest.fixture
+def ctrl_c_raises():
+    """Ctrl-C raises KeyboardInterrupt in this test, as in a terminal, even where the process
+    ignores SIGINT: pytest-xdist's workers do (their controller handles Ctrl-C), and so does a
+    shell's background job (Python then keeps SIGINT ignored)."""
+    import signal
+
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, before)
+
+
+@pytest.fixture
 def getkey():
     """Return a function that gives a fresh, deterministic PRNG key on each call."""
     key = jax.random.PRNGKey(0)

@@ -23,13 +23,8 @@ from softpinn.symbolic import codegen, outputs
 
 
 @pytest.fixture(autouse=True)
-def ctrl_c_raises():
-    """Ctrl-C raises KeyboardInterrupt here, as in a terminal, even when pytest inherited an
-    ignored SIGINT (a shell starts background jobs with SIGINT ignored, and Python then keeps
-    it ignored)."""
-    before = signal.signal(signal.SIGINT, signal.default_int_handler)
-    yield
-    signal.signal(signal.SIGINT, before)
+def _ctrl_c(ctrl_c_raises):
+    """Every test here sends Ctrl-C (conftest's ``ctrl_c_raises``)."""
 
 
 def slow_compiler(tmp_path: Path) -> Path:

@@ -172,7 +172,7 @@ def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
         train(msd, dataclasses.replace(cfg, lr=0.02), tmp_path / "part", resume=True)
 
 
-def test_ctrl_c_finishes_the_epoch_then_saves(msd, tmp_path):
+def test_ctrl_c_finishes_the_epoch_then_saves(msd, tmp_path, ctrl_c_raises):
     cfg = blackbox_train_config()
 
     def sigint_at_3(info):
