@@ -121,3 +121,24 @@ def _write(out: Path, manifest: dict) -> None:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
+
+
+def json_ready(x):
+    """``x`` as JSON without NaN or inf: non-finite floats become None, tuples and arrays lists,
+    numpy scalars Python numbers, keys strings (the challenge studies' and `control`'s
+    ``results.json``)."""
+    import math
+
+    import numpy as np
+
+    if isinstance(x, dict):
+        return {str(k): json_ready(v) for k, v in x.items()}
+    if isinstance(x, np.ndarray):
+        return json_ready(x.tolist())
+    if isinstance(x, list | tuple):
+        return [json_ready(v) for v in x]
+    if isinstance(x, float | np.floating):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    return x

@@ -16,21 +16,3 @@ study's section of the report (figure links relative to ``out``'s parent, e.g.
 wall time. ``quick`` runs in well under a minute on one core (CI runs it); the full form is what
 RESULTS.md reports.
 """
-
-
-def json_ready(x):
-    """``x`` with non-finite floats as None, tuples as lists, numpy scalars as Python numbers
-    and keys as strings: what every study writes to its ``results.json``."""
-    import math
-
-    import numpy as np
-
-    if isinstance(x, dict):
-        return {str(k): json_ready(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [json_ready(v) for v in x]
-    if isinstance(x, float | np.floating):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    return x

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from . import json_ready
+from ..outputs import json_ready
 
 #: Issue 18's targets: Hessian / structured step time per n, and today / fast time to loss.
 STEP_TARGETS = {6: 4.0, 12: 8.0}

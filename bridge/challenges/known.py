@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from . import json_ready
+from ..outputs import json_ready
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from . import json_ready
+from ..outputs import json_ready
 
 #: Issue 18's target for task 5: matrices within this many percent of the truth, directly.
 TARGET_PERCENT = 5.0

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
+from ..outputs import json_ready
 from .loop import closed_loop, metrics, plant
 from .models import (
     PredictionModel,
@@ -76,21 +77,6 @@ def machine() -> str:
 
 def _safe(name: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "_", name)
-
-
-def _finite(obj):
-    """JSON without NaN or inf: such numbers become null."""
-    if isinstance(obj, dict):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_finite(v) for v in obj]
-    if isinstance(obj, float | np.floating):
-        return float(obj) if np.isfinite(obj) else None
-    if isinstance(obj, np.integer):
-        return int(obj)
-    if isinstance(obj, np.ndarray):
-        return _finite(obj.tolist())
-    return obj
 
 
 def _references(tm, output, names, *, dt, horizon, center, radius, period, hold, duration):
@@ -285,7 +271,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
         "results": results,
         "seconds": time.perf_counter() - t_start,
     }
-    result = _finite(result)
+    result = json_ready(result)
     if out_dir is not None:
         from .plots import write_figures
         from .report import write_report
