@@ -153,6 +153,33 @@ def test_offset_free_mpc_removes_a_wrong_models_offset(specs, tmp_path, solver):
     assert final_d["true"] < 1e-6 and final_d["offset-free"] > 1e-2, final_d
 
 
+def test_a_rest_start_gives_the_estimate_the_models_miss_at_once(specs, tmp_path):
+    """Held at a target it rests on, the stiff model's controller moves the arm off it until
+    the estimate has learnt the offset; started from the model's miss at that rest state
+    (closed_loop sees the arm still: at_rest), the arm does not move at all."""
+    wrong = tmp_path / "stiff.toml"
+    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    tm = TrueModel(specs["full"])
+    out = tip_output(tm.spec)
+    q_star, u_star = equilibrium(tm, [0.3, -0.2])
+    x0 = np.concatenate([q_star, np.zeros(tm.n)])
+    cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3, codegen=False,
+                    offset_free=0.5)
+    R = np.tile(np.asarray(out(q_star)).ravel(), (30 + cfg.horizon, 1))
+    worst = {}
+    for at_rest in (False, None):
+        mpc = MPC(from_true(TrueModel(wrong), out), cfg)
+        res = closed_loop(mpc, plant(tm, cfg.dt), x0, R, 30, u0=u_star, at_rest=at_rest)
+        worst[at_rest] = metrics(res)["error_max"]
+        assert res["at_rest"] is (at_rest is None)
+    assert worst[False] > 1e-3, worst  # a few steps of the model's own equilibrium
+    assert worst[None] < 1e-3 * worst[False], worst
+    # not at rest (moving, or the plant not still under u0): the estimate starts at zero
+    res = closed_loop(MPC(from_true(TrueModel(wrong), out), cfg), plant(tm, cfg.dt), x0, R, 2,
+                      u0=np.zeros(tm.m))
+    assert res["at_rest"] is False
+
+
 def test_sqp_finds_the_ipopt_optimum(specs):
     """Both solvers minimise the same problem: the same first input to 1e-6."""
     tm = TrueModel(specs["forced"])

@@ -30,7 +30,7 @@ def plant(true_model, dt: float, *, rtol: float = 1e-8, atol: float = 1e-10) -> 
 
 
 def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, steps: int,
-                *, u0=None, progress=None) -> dict:
+                *, u0=None, at_rest: bool | None = None, progress=None) -> dict:
     """Run ``steps`` control steps from the true state x0 = (q, q̇).
 
     ``reference`` has shape (steps + horizon, ny): r_k for k = 1 ... steps + horizon (r_k is
@@ -51,7 +51,15 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     u_prev = np.zeros(m) if u0 is None else np.asarray(u0, float).ravel()
     xs, us, ok, status, secs, its, costs = [x], [], [], [], [], [], []
     diverged = False
-    controller.reset()
+    if at_rest is None:  # watch the arm for one step before the loop starts
+        at_rest = False
+        if not np.any(x[n:]):
+            try:
+                x1 = np.asarray(plant_fn(x0=x, p=u_prev)["xf"]).ravel()
+                at_rest = bool(np.all(np.abs(x1 - x) <= 1e-9 * (1.0 + np.abs(x))))
+            except RuntimeError:
+                pass
+    controller.reset(rest=at_rest)
     for k in range(steps):
         u, info = controller.solve(x[:n], x[n:], reference[k:k + N], u_prev)
         try:
@@ -78,7 +86,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     return {"x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
             "success": np.array(ok, bool), "status": status, "seconds": np.array(secs),
             "iterations": np.array(its, int), "cost": np.array(costs, float),
-            "diverged": diverged}
+            "diverged": diverged, "at_rest": bool(at_rest)}
 
 
 def metrics(result: dict) -> dict:

@@ -73,7 +73,10 @@ class MPCConfig:
     step the measured state's difference from the prediction updates it,
     d̂ ← d̂ + gain (x − F(x₋, u₋) − d̂). At rest this makes the model's equilibria the arm's: a
     learned model whose springs or weight are a little off would otherwise hold the arm off
-    the reference. With the true model d̂ stays ~0. 0 (the default) switches it off.
+    the reference. With the true model d̂ stays ~0. 0 (the default) switches it off. A loop
+    that starts with the arm at rest (``MPC.reset(rest=True)``, which :func:`closed_loop` does
+    when it sees the arm sit still under its first input) starts d̂ at x − F(x, u) there, what
+    the model gets wrong about that equilibrium, instead of at zero.
     """
 
     horizon: int = 20
@@ -485,11 +488,15 @@ class MPC:
 
     # ------------------------------------------------------------------ common face
 
-    def reset(self):
-        """Forget the warm start (and the disturbance estimate)."""
+    def reset(self, rest: bool = False):
+        """Forget the warm start and the disturbance estimate. ``rest``: the arm is known to
+        be at rest under the first solve's ``u_prev`` (an equilibrium of the arm), so with
+        ``offset_free`` the estimate starts at x − F(x, u_prev), the model's own miss there: a
+        learned model's equilibrium is corrected from the first step instead of after a few."""
         self._U = self._w = self._lam = None
         self._d = np.zeros(self.nx)
         self._x_next = None
+        self._rest = bool(rest)
 
     @property
     def disturbance(self) -> np.ndarray:
@@ -507,10 +514,16 @@ class MPC:
         t0 = time.perf_counter()
         x0 = np.asarray(self.model.to_state(q, qd), float)
         gain = self.config.offset_free
-        if gain > 0 and self._x_next is not None:
+        if gain > 0 and self._x_next is None and self._rest:
+            # at rest the arm's next state is x itself: F(x, u) misses it by the model's error
+            miss = x0 - np.asarray(self._step(x0, u_prev)).ravel()
+            if np.all(np.isfinite(miss)):
+                self._d = miss
+        elif gain > 0 and self._x_next is not None:
             miss = x0 - self._x_next  # = x − F(x₋, u₋) − d̂: what the model got wrong
             if np.all(np.isfinite(miss)):
                 self._d = self._d + gain * miss
+        self._rest = False
         if self.config.solver == "sqp":
             u, info = self._solve_sqp(x0, R.T, u_prev)
         else:
