@@ -30,20 +30,15 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from ..errors import UserError
+from .config import QP_SOLVERS, SOLVERS, MPCConfig
 from .models import PredictionModel
 
 __all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS"]
-
-#: the MPC solvers: Gauss-Newton SQP (compiled C, dense QP) and IPOPT (exact Hessian)
-SOLVERS = ("sqp", "ipopt")
-#: dense QP solvers for the SQP's box-constrained steps (all ship with CasADi's wheels)
-QP_SOLVERS = ("daqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
 
 _QP_OPTIONS = {
     "qrqp": {"print_iter": False, "print_header": False, "print_info": False},
@@ -51,76 +46,6 @@ _QP_OPTIONS = {
     "osqp": {"osqp": {"verbose": False, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True}},
     "highs": {"highs": {"output_flag": False}},
 }
-
-
-@dataclass(frozen=True)
-class MPCConfig:
-    """Horizon, step, RK4 sub-steps of the prediction, weights, input bounds, solver settings.
-
-    Weights: ``weight_y`` on the squared output error (per unit of y², e.g. m²),
-    ``weight_u`` on (u - u_ref)², ``weight_du`` on the squared input change per step.
-    ``max_iter``: iterations per control step, by default 1 for the SQP (the real-time
-    iteration: one Gauss-Newton step from the shifted previous plan, as real-time NMPC does;
-    more converge each solve, at a multiple of the time) and 50 for IPOPT; ``tol``: the SQP
-    stops earlier when the largest input change of an iteration is below it (IPOPT: its
-    tolerance).
-    ``substeps`` is the least number of RK4 sub-steps per control step; with ``stiffness``
-    > 0 and an operating point given to :class:`MPC`, a model whose linearisation there has
-    eigenvalues λ gets more, until h max|λ| <= ``stiffness`` for the sub-step h (RK4 is stable
-    up to about 2.8; learned models can be far stiffer than the arm).
-    ``offset_free`` in [0, 1]: the gain of a state-disturbance estimate (offset-free MPC):
-    the prediction becomes x_{k+1} = F(x_k, u_k) + d̂ over the whole horizon, and after each
-    step the measured state's difference from the prediction updates it,
-    d̂ ← d̂ + gain (x − F(x₋, u₋) − d̂). At rest this makes the model's equilibria the arm's: a
-    learned model whose springs or weight are a little off would otherwise hold the arm off
-    the reference. With the true model d̂ stays ~0. 0 (the default) switches it off. A loop
-    that starts with the arm at rest (``MPC.reset(rest=True)``, which :func:`closed_loop` does
-    when it sees the arm sit still under its first input) starts d̂ at x − F(x, u) there, what
-    the model gets wrong about that equilibrium, instead of at zero.
-    """
-
-    horizon: int = 20
-    dt: float = 0.02
-    substeps: int = 2
-    stiffness: float = 1.5
-    weight_y: float = 1e4
-    weight_u: float = 0.0
-    weight_du: float = 1e-2
-    u_ref: tuple[float, ...] | None = None
-    u_min: tuple[float, ...] | None = None
-    u_max: tuple[float, ...] | None = None
-    solver: str = "sqp"
-    qpsol: str = "daqp"
-    max_iter: int | None = None
-    tol: float = 1e-6
-    codegen: bool = True
-    offset_free: float = 0.0
-
-    def __post_init__(self):
-        if self.max_iter is None:
-            object.__setattr__(self, "max_iter", 1 if self.solver == "sqp" else 50)
-        for name in ("horizon", "substeps", "max_iter"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
-        for name in ("dt", "tol"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
-                raise UserError(f"{name}: expected a finite number > 0, got {v!r}")
-        for name in ("weight_y", "weight_u", "weight_du", "stiffness"):
-            v = getattr(self, name)
-            if not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
-                raise UserError(f"{name}: expected a finite number >= 0, got {v!r}")
-        if self.weight_y == 0:
-            raise UserError("weight_y: must be > 0 (the output error is what MPC tracks)")
-        if not (isinstance(self.offset_free, int | float) and not isinstance(
-                self.offset_free, bool) and 0.0 <= self.offset_free <= 1.0):
-            raise UserError(f"offset_free: expected a gain in [0, 1], got {self.offset_free!r}")
-        if self.solver not in SOLVERS:
-            raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
-        if self.qpsol not in QP_SOLVERS:
-            raise UserError(f"qpsol: expected one of {', '.join(QP_SOLVERS)}, got "
-                            f"{self.qpsol!r}")
 
 
 def _sym(fn: ca.Function):
@@ -238,9 +163,10 @@ class MPC:
     ``substeps``: the RK4 sub-steps used.
     """
 
-    def __init__(self, model: PredictionModel, config: MPCConfig = MPCConfig(), *,
+    def __init__(self, model: PredictionModel, config: MPCConfig | None = None, *,
                  operating_point=None, compiler=None, cache=None):
         self.model = model
+        config = MPCConfig() if config is None else config
         self.substeps = _substeps(model, config, operating_point)
         if self.substeps != config.substeps:
             config = dataclasses.replace(config, substeps=self.substeps)
