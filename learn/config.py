@@ -1,5 +1,5 @@
 """The settings of a training run: :class:`TrainConfig` (with the network's
-:class:`learn.models.ModelConfig`), validated where they enter.
+:class:`learn.model_config.ModelConfig`), validated where they enter.
 
 The loss is eq. 8 (velocity state), eq. 9 (momentum state) or eq. 10 (accelerations), see
 :mod:`learn.losses`; the optimizer is AdamW (Section III-B, "Model training") via optax.
@@ -48,7 +48,7 @@ class TrainingDiverged(UserError):
 class TrainConfig:
     """Everything that decides a training run (with the dataset and the seed).
 
-    ``model``: the network (:class:`learn.models.ModelConfig`; its n, m must match the data).
+    ``model``: the network (:class:`learn.model_config.ModelConfig`; its n, m must match the data).
     ``epochs``: passes over the training pairs in minibatches of ``batch_size`` (clipped to the
     number of pairs; the remainder of each shuffled epoch is dropped so shapes never change).
     ``batch_size`` None (the default) takes ``max(64, pairs // 100)``: batches of 64 train
@@ -58,7 +58,7 @@ class TrainConfig:
     all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
     ``clip_norm`` > 0 clips the global gradient norm.
-    ``init``: a run folder whose best model (the same :class:`learn.models.ModelConfig`) every
+    ``init``: a run folder whose best model (the same :class:`learn.model_config.ModelConfig`) every
     member starts from instead of a fresh initialisation: a warm start, e.g. a run of the
     acceleration loss (eq. 10, cheap: no RK4 step) before the pair loss (eq. 8/9; issue 18's
     fast Lagrangian training).

@@ -2,7 +2,7 @@
 Section VI-B): fixed, never trained, so that A u pins the scale and frame of M, D and G in
 eq. 6 (and eq. 7).
 
-The known matrix travels in :class:`learn.models.ModelConfig` as data (``known_input``, JSON
+The known matrix travels in :class:`learn.model_config.ModelConfig` as data (``known_input``, JSON
 text), so that a saved run rebuilds it from its ``config.json`` alone, without CasADi:
 
 * ``{"kind": "constant", "value": [[...], ...]}``: a constant n x m matrix;

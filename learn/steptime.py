@@ -2,7 +2,7 @@
 
 One jitted training step = the pair loss (eq. 8/9, one RK4 step per pair), its gradient and an
 optax AdamW update, on a batch of random pairs, with the default network sizes of
-:class:`learn.models.ModelConfig` (M, V: 64 x 3; D, A: 16 x 2; black box 128 x 3) and m = n.
+:class:`learn.model_config.ModelConfig` (M, V: 64 x 3; D, A: 16 x 2; black box 128 x 3) and m = n.
 The kinds of one (n, dtype) are compiled first, then timed round-robin, so that background load
 on a shared machine hits them alike: compare ratios within one call, not times across calls.
 Used by ``benchmarks/bench_learn.py`` and by the "fast" study of ``softpinn reproduce

@@ -81,7 +81,8 @@ def add_setting_flags(parser, *, skip=_CUSTOM, title=str, split_flags=_split_fla
 
 
 def add_network_flags(parser, title: str = "network") -> None:
-    """The flags of the network (:class:`learn.models.ModelConfig`), defaults from its fields."""
+    """The flags of the network (:class:`learn.model_config.ModelConfig`), defaults from its
+    fields."""
     net = parser.add_argument_group(title)
     net.add_argument("--width", type=int, default=None, help="width of every sub-network")
     net.add_argument("--depth", type=int, default=None,
