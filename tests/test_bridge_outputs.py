@@ -58,8 +58,16 @@ def test_reproduce_refuses_a_users_folder_before_any_work(tmp_path, capsys):
 
 
 @pytest.fixture(scope="module")
-def task1_run(quick_runs):
-    return quick_runs("task1").out_dir / "train" / "main" / "lagrangian" / "run"
+def task1_run(tmp_path_factory):
+    """A tiny Lagrangian network trained on task 1's own data (seconds: the session's shared
+    quick runs live on another xdist worker, where reusing them would mean running one again)."""
+    root = tmp_path_factory.mktemp("task1-run")
+    data, run = root / "task1.npz", root / "run"
+    assert main(["simulate", "task1", "--out", str(data), "--trajectories", "3",
+                 "--duration", "1", "--quiet"]) == 0
+    assert main(["train", str(data), "--model", "lagrangian", "--out", str(run), "--epochs", "2",
+                 "--width", "8", "--test-trajectories", "2", "--quiet"]) == 0
+    return run
 
 
 def test_analyze_protects_the_users_files(task1_run, tmp_path, capsys):

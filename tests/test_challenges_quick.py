@@ -18,7 +18,7 @@ import pytest
 from softpinn.bridge.challenges.pipeline import STUDIES
 from softpinn.bridge.cli import main
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 
 
 @pytest.fixture(scope="module")
