@@ -15,7 +15,7 @@ from .compiler import CompilerError
 from .signals import Signal
 
 __all__ = ["batched", "condition_numbers", "post_function", "postprocess", "kernel_rk4",
-           "kernel_post", "kernel_postprocess"]
+           "kernel_post", "kernel_postprocess", "in_threads"]
 
 
 def post_function(fns: Mapping[str, ca.Function], n: int, m: int) -> ca.Function | None:
@@ -58,14 +58,9 @@ def kernel_post(post_fn) -> kernel.Kernel | None:
     return None if built is None else built["post"]
 
 
-def kernel_postprocess(post: kernel.Kernel, x, u, n, threads):
-    """(qdd, p, M) at N samples from the post kernel, N split over ``threads`` threads."""
-    N = len(x)
-    res = np.empty((N, 2 * n + n * n))
-
-    def part(ix):
-        res[ix] = post(x[ix], u[ix])[0]
-
+def in_threads(part, N: int, threads: int) -> None:
+    """Call ``part(ix)`` on up to ``threads`` contiguous index blocks of range(N) at once (the
+    C kernels release the GIL, so the blocks run on as many cores)."""
     parts = [ix for ix in np.array_split(np.arange(N), max(1, min(threads, N))) if len(ix)]
     if len(parts) > 1:
         from concurrent.futures import ThreadPoolExecutor
@@ -75,6 +70,17 @@ def kernel_postprocess(post: kernel.Kernel, x, u, n, threads):
     else:
         for ix in parts:
             part(ix)
+
+
+def kernel_postprocess(post: kernel.Kernel, x, u, n, threads):
+    """(qdd, p, M) at N samples from the post kernel, N split over ``threads`` threads."""
+    N = len(x)
+    res = np.empty((N, 2 * n + n * n))
+
+    def part(ix):
+        res[ix] = post(x[ix], u[ix])[0]
+
+    in_threads(part, N, threads)
     mass = res[:, 2 * n :].reshape(-1, n, n).transpose(0, 2, 1)
     return res[:, :n], res[:, n : 2 * n], mass
 

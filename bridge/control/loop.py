@@ -91,7 +91,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
 
 def metrics(result: dict) -> dict:
     """Tracking error ‖y - r‖ (RMS and max over steps 1 ..., in the units of y), input effort
-    (RMS of u and of its change per step), failures, steps, divergence, solve times (ms)."""
+    (RMS of u and of its change per step), failures, steps, divergence, whether the loop
+    started at rest, solve times (ms)."""
     e = np.linalg.norm(result["y"][1:] - result["r"][1:], axis=1)
     u = result["u"]
     du = np.diff(u, axis=0) if len(u) > 1 else np.zeros((0, u.shape[1]))
@@ -109,6 +110,7 @@ def metrics(result: dict) -> dict:
         "failures": int(np.sum(~np.asarray(result["success"], bool))),
         "steps": int(len(result["success"])),
         "diverged": bool(result.get("diverged", False)),
+        "at_rest": bool(result.get("at_rest", False)),
         "iterations_mean": stat(np.mean, np.asarray(result["iterations"], float)),
         "solve_ms_mean": stat(np.mean, s),
         "solve_ms_median": stat(np.median, s),

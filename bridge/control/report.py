@@ -40,7 +40,9 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         f"{cfg['weight_du']:g}; input bounds: {bounds}"
         + (f"; offset-free: a constant state disturbance estimated with gain "
            f"{cfg['offset_free']:g} from each step's prediction error is added to every "
-           "predicted step" if cfg.get("offset_free") else "") + ".",
+           "predicted step, starting from the model's miss at the rest state where a loop "
+           "starts at rest (results.json: at_rest)"
+           if cfg.get("offset_free") else "") + ".",
         "",
         f"Output: {result['output']['what']} ({', '.join(result['output']['components'])}, "
         f"{unit}). Machine: {result['machine']}"

@@ -30,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ...symbolic import kernel
+from ...symbolic.samples import in_threads
 from ...symbolic.signals import Signal
 from ...symbolic.simulate import (
     SimResult,
@@ -232,15 +233,7 @@ def _c_outputs(rk: kernel.RK4, x: np.ndarray, u: np.ndarray, n: int, threads: in
         mom[ix] = post[:, :n]
         mass[ix] = post[:, n:].reshape(-1, n, n).transpose(0, 2, 1)
 
-    parts = [ix for ix in np.array_split(np.arange(N), max(1, min(threads, N))) if len(ix)]
-    if len(parts) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(len(parts)) as pool:
-            list(pool.map(part, parts))
-    else:
-        for ix in parts:
-            part(ix)
+    in_threads(part, N, threads)
     return qdd, mom, mass
 
 
