@@ -123,22 +123,26 @@ def _write(out: Path, manifest: dict) -> None:
             os.unlink(tmp)
 
 
-def json_ready(x):
-    """``x`` as JSON without NaN or inf: non-finite floats become None, tuples and arrays lists,
-    numpy scalars Python numbers, keys strings (the challenge studies' and `control`'s
-    ``results.json``)."""
+def to_jsonable(x):
+    """``x`` as JSON without NaN or inf (results.json of the analyses, the challenge studies and
+    `control`): arrays and tuples to lists, numpy scalars to Python, non-finite floats to None,
+    enums to str, keys to str."""
+    import enum
     import math
+    from collections.abc import Mapping
 
     import numpy as np
 
-    if isinstance(x, dict):
-        return {str(k): json_ready(v) for k, v in x.items()}
+    if isinstance(x, Mapping):
+        return {str(k): to_jsonable(v) for k, v in x.items()}
     if isinstance(x, np.ndarray):
-        return json_ready(x.tolist())
+        return to_jsonable(x.tolist())
     if isinstance(x, list | tuple):
-        return [json_ready(v) for v in x]
-    if isinstance(x, float | np.floating):
-        return float(x) if math.isfinite(x) else None
-    if isinstance(x, np.integer):
-        return int(x)
+        return [to_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, enum.Enum):
+        return str(x.value)
     return x

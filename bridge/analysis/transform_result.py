@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from ..outputs import to_jsonable
 from .matrices import (
     MatrixStack,
     as_stack,
@@ -116,23 +117,6 @@ class TransformResult:
                 "params": dict(self.params),
             }
         )
-
-
-def to_jsonable(x: Any) -> Any:
-    """Arrays to nested lists, numpy scalars to Python, NaN and inf to None, enums to str."""
-    if isinstance(x, Mapping):
-        return {str(k): to_jsonable(v) for k, v in x.items()}
-    if isinstance(x, np.ndarray):
-        return to_jsonable(x.tolist())
-    if isinstance(x, list | tuple):
-        return [to_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, enum.Enum):
-        return str(x.value)
-    return x
 
 
 def _residuals(P: np.ndarray, true: MatrixStack, learned: MatrixStack, blocks):

@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import json_ready
+from ..outputs import to_jsonable
 
 #: Issue 18's targets: Hessian / structured step time per n, and today / fast time to loss.
 STEP_TARGETS = {6: 4.0, 12: 8.0}
@@ -362,7 +362,7 @@ def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
     _figure(steps, ttl, figure)
     rel = f"{out.name}/{figure.name}"
     seconds = time.perf_counter() - t0
-    payload = json_ready({"steps": steps, "time_to_loss": ttl, "targets": _targets(steps, ttl),
+    payload = to_jsonable({"steps": steps, "time_to_loss": ttl, "targets": _targets(steps, ttl),
                       "quick": quick, "budgets": {form: BUDGETS[form]},
                       "step_settings": STEPS[form]})
     (out / "results.json").write_text(json.dumps(payload, indent=1, allow_nan=False))

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import json_ready
+from ..outputs import to_jsonable
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -238,7 +238,7 @@ def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
     _figure(results, figure)
     rel = f"{out.name}/{figure.name}"
     seconds = time.perf_counter() - t0
-    payload = json_ready({"tasks": results, "targets": _targets(results), "quick": quick,
+    payload = to_jsonable({"tasks": results, "targets": _targets(results), "quick": quick,
                "budgets": {"quick": QUICK} if quick else {"full": BUDGETS}})
     (out / "results.json").write_text(json.dumps(payload, indent=1, allow_nan=False))
     return {"title": "2a. The ideal Lagrangian solution: a known actuator model",

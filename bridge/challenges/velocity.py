@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import json_ready
+from ..outputs import to_jsonable
 
 #: Issue 18's target for task 5: matrices within this many percent of the truth, directly.
 TARGET_PERCENT = 5.0
@@ -394,7 +394,7 @@ def run_study(out: Path, *, quick: bool, log, progress=None) -> dict[str, Any]:
     for task in (QUICK_VARIANTS if quick else VARIANTS):
         log(f"velocity: {task}")
         results[task] = _task(task, out / task, quick=quick, log=log, progress=progress)
-    results = json_ready(results)
+    results = to_jsonable(results)
     figure = out / "velocity.png"
     _figure(results, figure)
     seconds = time.perf_counter() - t0

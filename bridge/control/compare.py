@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import UserError
-from ..outputs import json_ready
+from ..outputs import to_jsonable
 from .loop import closed_loop, metrics, plant
 from .models import (
     PredictionModel,
@@ -271,7 +271,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
         "results": results,
         "seconds": time.perf_counter() - t_start,
     }
-    result = json_ready(result)
+    result = to_jsonable(result)
     if out_dir is not None:
         from .plots import write_figures
         from .report import write_report
