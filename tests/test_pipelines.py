@@ -1,7 +1,7 @@
 """The paper tasks 1-3 end to end on quick settings, the reproduce/analyze CLI, and their
 notebooks (and the control notebook, on task 3's runs) executed on the same runs. Tasks 4 and 5
 are in test_pipelines_task45.py with the same checks: the suite's xdist workers take whole
-modules, so the two modules run side by side, each on its own session's quick runs."""
+modules, so the two modules run side by side, each on its worker's own quick runs."""
 
 from __future__ import annotations
 
