@@ -10,7 +10,6 @@ from typing import Any
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from . import checkpoint as ckpt
@@ -149,14 +148,16 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
     mcfg = ModelConfig.from_dict(info["model"])
     tcfg = TrainConfig.from_dict(info["train"])
     ensure_dtype(mcfg.dtype)
-    like = eqx.filter(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)
+    # the model's structure by shape alone: no initialisation runs (each of its random draws
+    # and small ops compiled on its own, seconds per load)
+    skeleton = eqx.filter_eval_shape(make_model, mcfg, key=jax.random.PRNGKey(0))
+    like, static = eqx.partition(skeleton, lambda x: isinstance(x, jax.ShapeDtypeStruct))
     path = run_dir / "model.eqx"
     if not path.is_file():
         raise UserError(f"run {run_dir}: no model.eqx yet (training not finished; --resume it)")
     _, params = ckpt.load_tree(path, like)
-    if not all(bool(jnp.all(jnp.isfinite(x))) for x in jax.tree.leaves(params)):
+    if not all(np.isfinite(np.asarray(x)).all() for x in jax.tree.leaves(params)):
         raise UserError(f"{path}: the model's parameters are not all finite (NaN or inf)")
-    static = eqx.partition(make_model(mcfg, key=jax.random.PRNGKey(0)), eqx.is_array)[1]
     return LoadedRun(
         model=eqx.combine(params, static),
         model_config=mcfg,

@@ -13,6 +13,7 @@ and compared there (STYLE, bridge/4). :func:`write_report` writes into one direc
 
 from __future__ import annotations
 
+import functools
 import json
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -154,18 +155,33 @@ def learned_matrices(learned_model: Any, q: np.ndarray) -> MatrixStack:
             f"learned model: {type(learned_model).__name__} has no matrices(q) method "
             "(a black-box model has no M, D, G, A to compare)"
         )
-    import equinox as eqx
-    import jax
     import jax.numpy as jnp
 
     # one compiled call: eager vmap compiles every primitive on its own (13 s against 2.5 s
     # for a small Hamiltonian net on a busy 2-core machine)
-    out = eqx.filter_jit(lambda model, qs: jax.vmap(model.matrices)(qs))(
-        learned_model, jnp.asarray(q)
-    )
+    out = _batched_matrices(learned_model, jnp.asarray(q))
     return MatrixStack.from_mapping(
         {k: np.asarray(v, dtype=np.float64) for k, v in out.items()}, name="learned"
     )
+
+
+@functools.cache
+def _jitted(method: str) -> Callable:
+    """``method`` of a model over a batch, compiled once per process: the model is an argument,
+    so models of one architecture (a task's variants, an ensemble's members) share the compiled
+    program; a lambda jitted at each call compiled it again for every model."""
+    import equinox as eqx
+    import jax
+
+    return eqx.filter_jit(lambda model, *a: jax.vmap(getattr(model, method))(*a))
+
+
+def _batched_matrices(model, q):
+    return _jitted("matrices")(model, q)
+
+
+def _batched_qdd(model, q, qd, u):
+    return _jitted("qdd")(model, q, qd, u)
 
 
 def _kind_of(learned_model: Any) -> str | None:
@@ -296,14 +312,11 @@ def _qdd_pair(true_model, learned_model, q, qd, u):
         return None
     if not callable(getattr(true_model, "qdd", None)):
         return None
-    import equinox as eqx
-    import jax
     import jax.numpy as jnp
 
     qd, u = np.asarray(qd, dtype=np.float64), np.asarray(u, dtype=np.float64)
     true = np.asarray(true_model.qdd(q, qd, u if u.shape[1] else None), dtype=np.float64)
-    learned = eqx.filter_jit(lambda model, *a: jax.vmap(model.qdd)(*a))(
-        learned_model, jnp.asarray(q), jnp.asarray(qd), jnp.asarray(u))
+    learned = _batched_qdd(learned_model, jnp.asarray(q), jnp.asarray(qd), jnp.asarray(u))
     return true.reshape(q.shape), np.asarray(learned, dtype=np.float64)
 
 
