@@ -106,3 +106,27 @@ def test_rollout_figure_shades_every_test_trajectory_behind_the_one_drawn(tmp_pa
     (x, lo, hi), = drawn
     assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)
     assert lo[0] == pytest.approx(1.2e-3) and hi[0] == pytest.approx(3.6e-3)  # 10-90 % of 1, 2, 4
+
+
+def test_a_quick_run_draws_drafts_and_a_full_run_print_copies(tmp_path):
+    """Inside draft_figures (quick runs) a figure is one PNG at screen resolution and no PDF;
+    outside, a 300 dpi PNG and its vector PDF."""
+    from PIL import Image
+
+    from softpinn.bridge.report.figsave import DPI, DRAFT_DPI, draft_figures, is_draft
+
+    t, q = _truth(n=2)
+    kw = dict(names=["theta1", "dL1"], units=["rad", "m"], title="drafts")
+    with draft_figures(True):
+        assert is_draft()
+        with draft_figures(False):  # a full block inside a draft stays a draft
+            assert is_draft()
+        draft = rollout_figure(t, q, {"lagrangian": q + 1e-3}, path=tmp_path / "d.png", **kw)
+    assert not is_draft()
+    full = rollout_figure(t, q, {"lagrangian": q + 1e-3}, path=tmp_path / "f.png", **kw)
+    assert not draft.with_suffix(".pdf").exists() and full.with_suffix(".pdf").is_file()
+    dpi = {}
+    for p in (draft, full):
+        with Image.open(p) as image:
+            dpi[p] = image.info["dpi"][0]
+    assert dpi[draft] == pytest.approx(DRAFT_DPI, abs=1) and dpi[full] == pytest.approx(DPI, abs=1)

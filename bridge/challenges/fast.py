@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from ..outputs import to_jsonable
+from ..report.figsave import figure_dpi
 
 #: Issue 18's targets: Hessian / structured step time per n, and today / fast time to loss.
 STEP_TARGETS = {6: 4.0, 12: 8.0}
@@ -271,7 +272,7 @@ def _figure(steps: dict[str, Any], ttl: dict[str, Any], path: Path) -> None:
     ax1.set_ylabel("test loss (eq. 8)")
     ax1.set_title(f"{TASK}: time to a test loss")
     ax1.legend(fontsize=7)
-    fig.savefig(path, dpi=200)
+    fig.savefig(path, dpi=figure_dpi(200))
     plt.close(fig)
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from ..outputs import to_jsonable
+from ..report.figsave import figure_dpi
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -176,7 +177,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel("direct relative residual [%] (no transform)")
         ax.set_title(f"{task}: learned vs true over the training data's q")
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=300)
+    fig.savefig(path, dpi=figure_dpi(300))
     plt.close(fig)
 
 

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 
 from ..outputs import to_jsonable
+from ..report.figsave import figure_dpi
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -312,7 +313,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel(f"prediction error over {r['runs']['none']['horizon_s']:g} s")
         ax.set_title(f"{task}: prediction error (test trajectories)")
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=300)
+    fig.savefig(path, dpi=figure_dpi(300))
     plt.close(fig)
 
 

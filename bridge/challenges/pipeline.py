@@ -117,7 +117,7 @@ def write_report(out: Path, studies: dict[str, dict], *, quick: bool, seconds: f
     if quick:
         lines += ["**This is a quick run**: tiny data and short training, to check the studies "
                   "in minutes; its numbers are not the studies' results (run without `--quick` "
-                  "for those).", ""]
+                  "for those), and its figures are screen-resolution drafts.", ""]
     lines += [f"`softpinn reproduce challenges{' --quick' if quick else ''}`; wall time "
               f"{seconds:.0f} s on {machine or 'this machine'} (per study: "
               + ", ".join(f"{n} {s.get('seconds', 0.0):.0f} s" for n, s in studies.items())

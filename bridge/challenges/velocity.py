@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from ..outputs import to_jsonable
+from ..report.figsave import figure_dpi
 
 #: Issue 18's target for task 5: matrices within this many percent of the truth, directly.
 TARGET_PERCENT = 5.0
@@ -301,7 +302,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel("direct relative residual [%]")
         ax.set_title(f"{task}, {variant}: learned vs true (no transform)")
         ax.legend(fontsize=6)
-    fig.savefig(path, dpi=300)
+    fig.savefig(path, dpi=figure_dpi(300))
     plt.close(fig)
 
 

@@ -154,7 +154,7 @@ def verdict(plan, results: Mapping[str, Any]) -> list[str]:
     if plan.quick:
         out.append("**This is a quick run** (few short trajectories, tiny networks, few epochs, "
                    "two rates): it checks the pipeline; its numbers say nothing about the "
-                   "method.")
+                   "method, and its figures are screen-resolution drafts (no PDF copies).")
     wins, cells = [], 0
     for rn, per in results["rates"].items():
         for p, e in per["preprocessing"].items():

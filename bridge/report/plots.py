@@ -19,6 +19,7 @@ from matplotlib.figure import Figure
 
 from ..analysis.transforms import as_stack
 from ..errors import UserError
+from .figsave import figure_dpi
 
 _TITLES = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
 
@@ -29,7 +30,7 @@ def _save(fig: Figure, path: str | Path | None) -> Figure:
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(p.stem + ".tmp" + p.suffix)
-        fig.savefig(tmp, dpi=300)  # readable in print
+        fig.savefig(tmp, dpi=figure_dpi(300))  # readable in print (a draft on quick runs)
         tmp.replace(p)
     return fig
 

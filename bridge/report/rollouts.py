@@ -51,7 +51,7 @@ def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
 
 def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray], *,
                    names: Sequence[str], units: Sequence[str], title: str, path: str | Path,
-                   u: np.ndarray | None = None, dpi: int = 300,
+                   u: np.ndarray | None = None, dpi: int | None = None,
                    bands: Mapping[str, tuple[np.ndarray, np.ndarray]] | None = None) -> Path:
     """Write the figure: a panel per coordinate, the error panel and, given ``u`` (T, m), the
     inputs the models were driven by (see the module). ``bands``: per model ``(t (T,), errors
@@ -148,7 +148,7 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
 
 
 def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title: str,
-                   path: str | Path, dpi: int = 300) -> Path:
+                   path: str | Path, dpi: int | None = None) -> Path:
     """How far ahead a model can be trusted: for each model the error max over q of
     |q - q_hat| against the time since the start, over every test trajectory (``curves[kind] =
     (t (T,), errors (K, T))``): the median as a line, the 10-90 % band shaded, log scale. A

@@ -12,7 +12,7 @@ import numpy as np
 
 from softpinn.symbolic.shape import backbone_points
 
-from .figsave import save_for_print
+from .figsave import is_draft, save_for_print
 from .rollouts import COLORS, NETWORK, diverged_at
 
 
@@ -79,7 +79,8 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
 
 
 def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray],
-                 *, path: str | Path, title: str, instants: int = 4, dpi: int = 300) -> Path:
+                 *, path: str | Path, title: str, instants: int = 4,
+                 dpi: int | None = None) -> Path:
     """The true (black) and predicted backbones at ``instants`` times of a rollout, one panel
     each; a prediction that diverged before an instant is left out of that panel."""
     import matplotlib
@@ -136,6 +137,8 @@ def shape_animation(spec, t: np.ndarray, q_true: np.ndarray,
 
     t = np.asarray(t, float)
     q_true = np.asarray(q_true, float)
+    if is_draft():  # a quick run's draft: fewer frames (each is a full draw)
+        frames = min(frames, 15)
     idx = np.unique(np.linspace(0, len(t) - 1, frames).round().astype(int))
     true_pts = backbone_points(spec, q_true[idx])
     preds = {}

@@ -44,7 +44,9 @@ def verdict(plan, results: dict[str, Any]) -> list[str]:
     if plan.quick:
         says.append("**This is a quick run**: little data and short training, to check the "
                     "pipeline in minutes; its numbers are not meant to match the paper's, and "
-                    "may even rank the models the other way (run without `--quick` for that).")
+                    "may even rank the models the other way (run without `--quick` for that). Its "
+                    "figures are screen-resolution drafts; a full run writes 300 dpi PNGs and "
+                    "vector PDFs.")
     for vname, vres in results["variants"].items():
         models = vres["models"]
         on = "" if vname == "main" else f" on the {vname} data"

@@ -75,13 +75,20 @@ def reproduce(
     may be new, empty or an earlier reproduce's (finished stages are reused); another non-empty
     folder is refused unless ``force`` (:mod:`bridge.outputs`: nothing of the user's is
     overwritten or removed)."""
+    if isinstance(config, str):
+        config = ReproduceConfig(task=config)
+    from ..report.figsave import draft_figures
+
+    with draft_figures(config.quick):  # a quick run's figures are drafts (no print copies)
+        return _reproduce(config, out_dir, log=log, progress=progress, force=force)
+
+
+def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> ReproduceResult:
     import jax
 
     jax.config.update("jax_enable_x64", True)
     from softpinn.symbolic.spec import load_spec
 
-    if isinstance(config, str):
-        config = ReproduceConfig(task=config)
     log = log or (lambda s: None)
     if config.task in CHALLENGES:  # the open challenges: studies of their own
         from ..challenges.pipeline import run_challenges
