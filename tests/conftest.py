@@ -6,6 +6,11 @@ import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# XLA's fast-compile settings (learn/xlaflags.py): the tests' tiny trainings spend most of their
+# time compiling; the programs compute the same numbers (measured: training tests 35 % faster)
+from softpinn.learn.xlaflags import with_fast_compile  # noqa: E402
+
+os.environ["XLA_FLAGS"] = with_fast_compile(os.environ.get("XLA_FLAGS"))
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

@@ -19,12 +19,13 @@ from softpinn.bridge.cli import main
 from softpinn.learn.config import TrainConfig
 from softpinn.learn.errors import UserError
 from softpinn.learn.models import ModelConfig
+from softpinn.learn.xlaflags import with_fast_compile
 
 TESTS = Path(__file__).parent
 
 SCRIPT = textwrap.dedent("""
     import json, os, sys
-    os.environ["XLA_FLAGS"] = "--xla_force_host_platform_device_count=4"
+    os.environ["XLA_FLAGS"] += " --xla_force_host_platform_device_count=4"
     import jax
     jax.config.update("jax_enable_x64", True)
     sys.path.insert(0, sys.argv[2])
@@ -64,7 +65,7 @@ SCRIPT = textwrap.dedent("""
 
 
 def test_four_devices_give_the_one_device_parameters(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    env = dict(os.environ, XLA_FLAGS=with_fast_compile(None))  # no device count of ours
     out = subprocess.run([sys.executable, "-c", SCRIPT, str(tmp_path), str(TESTS)],
                          capture_output=True, text=True, env=env, timeout=600)
     assert out.returncode == 0, out.stderr[-3000:]

@@ -257,6 +257,10 @@ def _force_samples(run, data_path, count, transforms):
 def cmd_reproduce(args) -> int:
     from ..tasks import ReproduceConfig, reproduce
 
+    if args.quick:  # compiling is most of a quick run: XLA's fast-compile settings
+        from softpinn.learn.xlaflags import use_fast_compile
+
+        use_fast_compile()
     config = ReproduceConfig(
         task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,
         lbfgs_steps=args.lbfgs_steps, float32=args.float32,
