@@ -13,6 +13,6 @@ finished stages, which it may reuse); the study writes its runs and figures ther
 ``{"title": str, "markdown": str, "results": dict, "seconds": float}``: ``markdown`` is the
 study's section of the report (figure links relative to ``out``'s parent, e.g.
 ``fast/time_to_loss.png``), ``results`` every number it measured (JSON-ready), ``seconds`` its
-wall time. ``quick`` runs in well under a minute on one core (CI runs it); the full form is what
-RESULTS.md reports.
+wall time. ``quick`` runs in about a minute per study on a 2-core machine (all four: 222 s in
+the test suite, which runs it); the full form is what RESULTS.md reports.
 """
