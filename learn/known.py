@@ -9,7 +9,7 @@ text), so that a saved run rebuilds it from its ``config.json`` alone, without C
 * ``{"kind": "program", "program": {...}}``: the exact A(q) of a symbolic model as CasADi's SX
   instruction list, written by :mod:`softpinn.bridge.exact.serialize` (format
   ``softpinn-program/1``: operation names, operand indices, constants, output sparsity),
-  replayed here in ``jax.numpy`` with CasADi's semantics (those of
+  replayed in ``jax.numpy`` by :mod:`learn.program` with CasADi's semantics (those of
   :mod:`softpinn.bridge.exact.translate`).
 
 :class:`KnownMatrix` holds either as a static field: the optimizer sees no parameter in it.
@@ -28,7 +28,6 @@ from .errors import UserError
 from .program import PROGRAM_FORMAT, check_program, run_program
 
 __all__ = ["PROGRAM_FORMAT", "KnownMatrix", "known_input_text", "parse_known_input"]
-
 
 
 def _program(data: Any, n: int, m: int) -> tuple:

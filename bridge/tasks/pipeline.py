@@ -74,7 +74,7 @@ def reproduce(
     """Run a paper task end to end into ``out_dir`` (see the module docstring). ``out_dir``
     may be new, empty or an earlier reproduce's (finished stages are reused); another non-empty
     folder is refused unless ``force`` (:mod:`bridge.outputs`: nothing of the user's is
-    overwritten or removed)."""
+    overwritten or removed). A quick run's figures are drafts (:mod:`bridge.report.figsave`)."""
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
     from ..report.figsave import draft_figures
