@@ -4,9 +4,10 @@ A quick run (``softpinn reproduce --quick``, the test suite) trains tiny network
 epochs: nearly all of its time is XLA compiling the training, prediction and analysis programs
 (4-17 s each for a structured Lagrangian network on a 2-core machine). XLA's CPU backend
 compiles them about twice as fast without LLVM's optimisation passes and its newer fusion
-emitters, and the programs compute the same numbers (no fast-math is involved: float64 results
-of the quick task 5 pipeline agreed to 1e-15); they only run slower, which a short job does not
-notice. Long runs keep XLA's defaults.
+emitters, and the programs compute the same numbers to rounding (no fast-math is involved: at
+optimisation level 0 quick task 5's float64 results agreed to 1e-15, with both flags the README's
+quick task 3 printed the same digits; tests/test_xlaflags.py checks a program); they only run
+slower, which a short job does not notice. Long runs keep XLA's defaults.
 
 XLA reads ``XLA_FLAGS`` once, when JAX creates its backend (the first array): the flags must be
 set before that, which :func:`use_fast_compile` checks.
