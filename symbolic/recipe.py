@@ -42,6 +42,7 @@ BUDGET_KEYS: dict[str, tuple[str, tuple | None]] = {
     "lbfgs_steps": ("int0", None),
     "lr": ("float", None),
     "equal_steps": ("bool", None),
+    "patience": ("int", None),
 }
 
 #: [training.quick]: the quick settings (``reproduce --quick``): data and budget

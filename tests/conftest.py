@@ -59,7 +59,10 @@ def quick_runs(tmp_path_factory):
         if task not in cache:
             from softpinn.bridge.tasks import ReproduceConfig, reproduce
 
-            config = ReproduceConfig(task, quick=True, epochs=QUICK_EPOCHS, lbfgs_steps=0)
+            # task 1 runs its two models side by side (--jobs 2): every test of its run
+            # checks the parallel path's files; test_pipelines checks a serial call agrees
+            config = ReproduceConfig(task, quick=True, epochs=QUICK_EPOCHS, lbfgs_steps=0,
+                                     jobs=2 if task == "task1" else 1)
             cache[task] = reproduce(config, root / f"{task}-quick")
         return cache[task]
 

@@ -45,7 +45,8 @@ def quick(tmp_path_factory):
     from softpinn.bridge.tasks import reproduce
 
     out = tmp_path_factory.mktemp("experiment")
-    return reproduce(ReproduceConfig("experiment", quick=True), out)
+    # its models side by side (--jobs 2): the checks below read what the workers wrote
+    return reproduce(ReproduceConfig("experiment", quick=True, jobs=2), out)
 
 
 def _finite_or_diverged(entry):
@@ -76,6 +77,7 @@ def test_quick_run_writes_the_report_tables_and_figures(quick):
     assert "traj,t,u0,u1,u2,u3,roll,pitch,yaw" in csv_text
     manifest = json.loads((out / "manifest.json").read_text())
     assert "report.md" in json.dumps(manifest)
+    assert "models at a time (`--jobs 2`)" in text
 
 
 def test_quick_run_numbers_are_finite_or_marked_diverged(quick):

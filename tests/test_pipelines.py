@@ -135,16 +135,21 @@ def _errors_are_reported_at_lambda_one(result, text):
 
 
 def test_second_call_skips_finished_stages(quick_runs):
+    """Task 1's quick run trained its models side by side (--jobs 2, conftest): a serial call
+    finds every stage finished with the same settings and gathers the same results."""
+    import dataclasses
+
     first = quick_runs("task1")
+    assert first.config.jobs == 2 and "2 models at a time (`--jobs 2`)" in first.report.read_text()
     done = sorted(first.out_dir.glob("**/done.json"))
     stamps = [p.stat().st_mtime_ns for p in done]
     lines = []
-    again = reproduce(first.config, first.out_dir, log=lines.append)
+    again = reproduce(dataclasses.replace(first.config, jobs=1), first.out_dir, log=lines.append)
     assert [p.stat().st_mtime_ns for p in done] == stamps
     assert sum("skipped" in line for line in lines) == len(done)
-    a = first.results["variants"]["main"]["models"]["lagrangian"]["predict"]
-    b = again.results["variants"]["main"]["models"]["lagrangian"]["predict"]
-    assert a == b
+    for kind in ("lagrangian", "blackbox"):
+        a, b = (r.results["variants"]["main"]["models"][kind] for r in (first, again))
+        assert a == b, kind
 
 
 def test_a_moved_output_folder_keeps_its_finished_stages(quick_runs, tmp_path, monkeypatch):
@@ -180,7 +185,8 @@ def test_changed_training_settings_retrain_from_scratch(quick_runs, tmp_path):
     out = tmp_path / "task1"
     shutil.copytree(first.out_dir, out)
     epochs = first.config.epochs + 3
-    again = reproduce(dataclasses.replace(first.config, epochs=epochs), out, log=lambda _: None)
+    again = reproduce(dataclasses.replace(first.config, epochs=epochs, jobs=1), out,
+                      log=lambda _: None)
     for kind in ("lagrangian", "blackbox"):
         metrics = again.results["variants"]["main"]["models"][kind]["train"]["metrics"]
         assert [m["epochs_run"] for m in metrics["members"]] == [epochs]
@@ -199,7 +205,8 @@ def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
     plan = pipelines.make_plan
     monkeypatch.setattr(pipelines, "make_plan", lambda spec, config: dataclasses.replace(
         plan(spec, config), data={**plan(spec, config).data, "seed": 12345}))
-    again = reproduce(first.config, out, log=lambda _: None)
+    # serial: the patched plan lives in this process only, not in --jobs workers
+    again = reproduce(dataclasses.replace(first.config, jobs=1), out, log=lambda _: None)
     for kind in ("lagrangian", "blackbox"):
         old = first.results["variants"]["main"]["models"][kind]["train"]["metrics"]
         new = again.results["variants"]["main"]["models"][kind]["train"]["metrics"]
@@ -208,7 +215,10 @@ def test_new_data_retrain_every_model(quick_runs, tmp_path, monkeypatch):
 
 def test_seeds_report_mean_and_std_of_errors_and_matrices(tmp_path):
     """--seeds K: every seed is trained, predicted and analysed; the report gives the first
-    seed's residual per configuration, then mean ± std (largest) over the seeds."""
+    seed's residual per configuration, then mean ± std (largest) over the seeds. With --jobs 2
+    the numbers are the same."""
+    import dataclasses
+
     result = reproduce(ReproduceConfig("task1", quick=True, seeds=2, epochs=10, lbfgs_steps=0),
                        tmp_path / "t1", log=lambda _: None)
     entry = result.results["variants"]["main"]["models"]["lagrangian"]
@@ -223,6 +233,21 @@ def test_seeds_report_mean_and_std_of_errors_and_matrices(tmp_path):
     assert "The same over all 2 seeds: mean ± std (largest)." in text
     mean, std, top = np.mean(first), np.std(first), np.max(first)
     assert f"{100 * mean:.2f} ± {100 * std:.2f} % ({100 * top:.2f} %)" in text
+    # the same run with its two models side by side (--jobs 2) gives the same numbers
+    side = reproduce(dataclasses.replace(result.config, jobs=2), tmp_path / "t1-jobs",
+                     log=lambda _: None)
+    assert _numbers(side.results, side.out_dir) == _numbers(result.results, result.out_dir)
+
+
+def _numbers(results: dict, root: Path):
+    """``results`` without times, its paths relative to ``root``."""
+    if isinstance(results, dict):
+        return {k: _numbers(v, root) for k, v in results.items() if "seconds" not in k}
+    if isinstance(results, list):
+        return [_numbers(v, root) for v in results]
+    if isinstance(results, str):
+        return results.replace(str(root), "$OUT")
+    return results
 
 
 def test_plans_follow_the_paper():
@@ -276,6 +301,13 @@ def test_plans_follow_the_paper():
     assert full["task1"].other_dt == 0.1 and full["task2"].other_dt == 0.15
     quick = make_plan(load_spec("task2"), ReproduceConfig("task2", quick=True, epochs=7))
     assert quick.models["lagrangian"]["epochs"] == 7 and quick.data["duration"] < 10
+    # early stopping where the recipe asks for it (task5's overfitting fixed-step runs), in
+    # full runs only; the stage hands it to the training (test_recipe: a TrainConfig name)
+    assert {(t, k): m["patience"] for t in TASKS for k, m in full[t].models.items()
+            if "patience" in m} == {("task5", "lagrangian"): 30, ("task5", "blackbox"): 10}
+    assert "patience" not in make_plan(load_spec("task5"), ReproduceConfig(
+        "task5", quick=True)).models["blackbox"]
+    assert variant_model(t5, t5.variants[0], "blackbox")["patience"] == 10
 
 
 def _err(capsys):
@@ -289,6 +321,49 @@ def test_reproduce_unknown_task_is_one_line_error(tmp_path, capsys):
     assert "task9" in _err(capsys)
     assert main(["reproduce", "task1", "--seeds", "0", "--out", str(tmp_path / "x")]) == 2
     assert "--seeds" in _err(capsys)
+    assert main(["reproduce", "task1", "--jobs", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "--jobs must be an integer >= 1, got 0" in _err(capsys)
+    assert main(["reproduce", "challenges", "--jobs", "2", "--out", str(tmp_path / "x")]) == 2
+    assert "--jobs: challenges runs its models one at a time" in _err(capsys)
+    assert not (tmp_path / "x").exists()
+
+
+def test_jobs_progress_shows_the_models_and_keeps_log_lines(capsys):
+    """reproduce --jobs: one bar over the models, where each running one is, and the workers'
+    log lines printed whole above it."""
+    from softpinn.bridge.cli.bridge import _EpochBar
+
+    bar = _EpochBar()
+    bar({"phase": "models", "models": {"50Hz/lagrangian": 10, "100Hz/blackbox": 4}})
+    event = {"phase": "adamw", "epoch": 3, "epochs": 10, "label": "0", "train_loss": [1.0],
+             "test_loss": None}
+    bar({**event, "model": "50Hz/lagrangian"})
+    bar.write("[train/100Hz/blackbox] ...")
+    bar({"phase": "model-done", "model": "100Hz/blackbox"})
+    shown = bar.models.bar.format_dict
+    assert (shown["n"], shown["total"]) == (1, 2)
+    assert "50Hz/lagrangian 3/10 epochs" in shown["postfix"]
+    bar({"phase": "model-done", "model": "50Hz/lagrangian"})
+    bar.write("50Hz/lagrangian: test 1e-3")
+    bar.close()
+    err = capsys.readouterr().err
+    assert "[train/100Hz/blackbox] ...\n" in err and "50Hz/lagrangian: test 1e-3\n" in err
+
+
+def test_a_serial_full_run_says_what_jobs_would_do(monkeypatch):
+    import os
+
+    from softpinn.bridge.tasks.parallel import suggest_jobs
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
+    lines = []
+    suggest_jobs(6, lines.append)
+    suggest_jobs(1, lines.append)  # one model: nothing to run side by side
+    assert lines == ["[models] 6 models, one at a time: --jobs 4 would train 4 side by side on "
+                     "this machine's 4 cores"]
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0}, raising=False)
+    suggest_jobs(6, lines.append)  # one core: nothing to spare
+    assert len(lines) == 1
 
 
 def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
@@ -383,3 +458,30 @@ def run_notebook(path, quick_runs, monkeypatch):
     assert not [o for o in outputs if o.get("output_type") == "error"]
     images = [o for o in outputs if "image/png" in o.get("data", {})]
     assert len(images) >= 3
+
+
+def _interrupted_model():
+    from softpinn.bridge.tasks.parallel import WorkerInterrupted
+
+    raise WorkerInterrupted("main/lagrangian: interrupted")
+
+
+def _failing_model():
+    from softpinn.bridge.errors import UserError
+
+    raise UserError("task.toml: field 'x': expected a number")
+
+
+def test_jobs_workers_errors_and_interruptions_reach_the_caller():
+    """A worker's user error is the caller's (one line at the command line), and a worker
+    interrupted first (Ctrl-C reaches every process) stops the run as Ctrl-C does."""
+    from softpinn.bridge.errors import UserError
+    from softpinn.bridge.tasks.parallel import run_models
+
+    lines = []
+    with pytest.raises(UserError, match="field 'x': expected a number"):
+        run_models([("a", _failing_model, (), 1), ("b", _failing_model, (), 1)], jobs=2,
+                   log=lines.append, progress=None)
+    with pytest.raises(KeyboardInterrupt):
+        run_models([("c", _interrupted_model, (), 1)], jobs=2, log=lines.append, progress=None)
+    assert lines[-1].startswith("interrupted: the models in training save a checkpoint")

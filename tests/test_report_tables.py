@@ -264,3 +264,19 @@ def test_bad_shapes_and_files(tmp_path):
         read_csv(tmp_path / "missing.csv")
     with pytest.raises(UserError, match="no such file"):
         load_paper_tables(tmp_path / "missing.json")
+
+
+def test_epochs_column_says_when_training_stopped_early():
+    """Table III's epochs column: the epochs run where early stopping (a recipe's patience)
+    ended a run sooner, else the budget, with L-BFGS iterations after them."""
+    from softpinn.bridge.report.task import _epochs
+
+    def trained(planned, ran, lbfgs=0):
+        return {"epochs": planned, "config": {"lbfgs_steps": lbfgs},
+                "metrics": {"members": [{"epochs_run": r} for r in ran]}}
+
+    assert _epochs(trained(40, [40])) == 40
+    assert _epochs(trained(40, [13])) == "13 of 40 (early stop)"
+    assert _epochs(trained(40, [13, 22])) == "13-22 of 40 (early stop)"
+    assert _epochs(trained(400, [400], 2000)) == "400 + 2000 L-BFGS"
+    assert _epochs(trained(400, [120], 2000)) == "120 of 400 (early stop) + 2000 L-BFGS"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 
 from .. import outputs
 from ..errors import UserError
@@ -72,6 +73,10 @@ def register(subparsers) -> None:
     r.add_argument("--lbfgs-steps", type=int, default=None,
                    help="override every model's L-BFGS iterations after AdamW")
     r.add_argument("--float32", action="store_true", help="train in float32")
+    r.add_argument("--jobs", type=int, default=1, metavar="N",
+                   help="train and analyse N models at a time, each in a process of its own "
+                        "(the tasks and the experiment; same results, sooner on a machine with "
+                        "cores to spare)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=cmd_reproduce)
 
@@ -263,14 +268,13 @@ def cmd_reproduce(args) -> int:
         use_fast_compile()
     config = ReproduceConfig(
         task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,
-        lbfgs_steps=args.lbfgs_steps, float32=args.float32,
+        lbfgs_steps=args.lbfgs_steps, float32=args.float32, jobs=args.jobs,
     )
     bar = None if args.quiet else _EpochBar()
 
     def log(line: str) -> None:
         if bar is not None:
-            bar.close()
-            print(line, file=sys.stderr, flush=True)
+            bar.write(line)
     try:
         result = reproduce(config, args.out, log=log, progress=bar, force=args.force)
     finally:
@@ -281,7 +285,8 @@ def cmd_reproduce(args) -> int:
 
 
 class _EpochBar:
-    """One tqdm bar per trained model, driven by the training callback."""
+    """One tqdm bar per trained model, driven by the training callback; with ``--jobs``, one
+    bar over the models running side by side (:class:`_ModelsBar`)."""
 
     def __init__(self):
         from .learn import LbfgsBar
@@ -289,10 +294,17 @@ class _EpochBar:
         self.bar = None
         self.key = None
         self.lbfgs = LbfgsBar()
+        self.models = None
 
     def __call__(self, info: dict):
         from tqdm.auto import tqdm
 
+        if info["phase"] == "models" or "model" in info:  # reproduce --jobs: models side by side
+            if self.models is None:
+                self.close()
+                self.models = _ModelsBar()
+            self.models(info)
+            return
         if info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
             self.lbfgs(info)
             return
@@ -313,8 +325,67 @@ class _EpochBar:
             post["phase"] = info["phase"]
         self.bar.set_postfix(post, refresh=False)
 
+    def write(self, line: str) -> None:
+        """A log line: above the models' bar while models run side by side, else after closing
+        the model's bar."""
+        if self.models is not None and not self.models.finished:
+            self.models.write(line)
+            return
+        self.close()
+        print(line, file=sys.stderr, flush=True)
+
     def close(self):
         self.lbfgs.close()
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+        if self.models is not None:
+            self.models.close()
+            self.models = None
+
+
+class _ModelsBar:
+    """``reproduce --jobs``: one bar over the models, and where each running one is."""
+
+    def __init__(self):
+        self.bar = None
+        self.epochs: dict[str, int] = {}
+        self.where: dict[str, str] = {}
+        self.finished = False
+        self.shown = 0.0
+
+    def __call__(self, info: dict) -> None:
+        from tqdm.auto import tqdm
+
+        if info["phase"] == "models":
+            self.epochs = dict(info["models"])
+            self.bar = tqdm(total=len(self.epochs), file=sys.stderr, unit="model",
+                            dynamic_ncols=True, leave=False)
+            return
+        if self.bar is None:
+            return
+        key = info["model"]
+        if info["phase"] == "model-done":
+            self.where.pop(key, None)
+            self.bar.update(1)
+            self.finished = self.bar.n >= self.bar.total
+        elif info["phase"] == "lbfgs" and info.get("lbfgs_done") is not None:
+            self.where[key] = f"L-BFGS {info['lbfgs_done']}/{info['lbfgs_steps']}"
+        else:
+            self.where[key] = f"{info['epoch']}/{info['epochs']} epochs"
+        self.bar.set_postfix_str("; ".join(f"{k} {v}" for k, v in self.where.items()),
+                                 refresh=False)
+        now = time.monotonic()
+        if now - self.shown >= 0.5 or info["phase"] == "model-done":  # at most twice a second
+            self.bar.refresh()
+            self.shown = now
+
+    def write(self, line: str) -> None:
+        from tqdm.auto import tqdm
+
+        tqdm.write(line, file=sys.stderr)
+
+    def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
             self.bar = None

@@ -24,6 +24,7 @@ from .experiment_figures import (
 from .paper import load_paper_tables
 from .rollouts import NETWORK
 from .tables import Span, Table, format_mean_std, format_number, to_markdown, write_table
+from .walltime import WallTime
 
 WHO = {"lagrangian": "Lagrangian network", "blackbox": "black box"}
 
@@ -222,7 +223,8 @@ def verdict(plan, results: Mapping[str, Any]) -> list[str]:
 
 
 def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *,
-                            seconds: float, machine: str) -> Path:
+                            seconds: float, machine: str, jobs: int = 1) -> Path:
+    wall = WallTime(seconds)
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -236,7 +238,8 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
         "",
         f"`softpinn reproduce experiment{' --quick' if plan.quick else ''}` "
         f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); wall time "
-        f"{seconds:.0f} s on {machine}.",
+        f"{WallTime.MARK} s on {machine}"
+        + (f", {jobs} models at a time (`--jobs {jobs}`)." if jobs > 1 else "."),
         "",
     ]
     lines += verdict(plan, results)
@@ -382,6 +385,6 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
               ""]
     path = out / "report.md"
     tmp = out / ".report.md.tmp"
-    tmp.write_text("\n".join(lines), encoding="utf-8")
+    tmp.write_text(wall.fill("\n".join(lines)), encoding="utf-8")
     os.replace(tmp, path)
     return path

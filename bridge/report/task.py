@@ -22,6 +22,7 @@ from .paper import table_iii_comparison
 from .tables import to_markdown, write_table
 from .task_figures import _rate_figure, _variant_figures
 from .verdict import verdict
+from .walltime import WallTime
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 _COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
@@ -36,9 +37,16 @@ def _model_size(kind: str, m: dict) -> str:
 
 
 def _epochs(trained: dict) -> int | str:
-    """AdamW epochs, and the L-BFGS iterations after them where there were any."""
+    """AdamW epochs (those run, where early stopping ended them sooner), and the L-BFGS
+    iterations after them where there were any."""
     lbfgs = int(trained.get("config", {}).get("lbfgs_steps", 0))
-    return f"{trained['epochs']} + {lbfgs} L-BFGS" if lbfgs else trained["epochs"]
+    epochs: int | str = trained["epochs"]
+    ran = sorted({int(m["epochs_run"]) for m in trained.get("metrics", {}).get("members", [])
+                  if m.get("epochs_run") is not None})
+    if ran and ran != [epochs]:
+        span = f"{ran[0]}" if len(ran) == 1 else f"{ran[0]}-{ran[-1]}"
+        epochs = f"{span} of {epochs} (early stop)"
+    return f"{epochs} + {lbfgs} L-BFGS" if lbfgs else epochs
 
 
 def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
@@ -62,9 +70,10 @@ def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
 
 
 def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
-                      machine: str) -> Path:
+                      machine: str, jobs: int = 1) -> Path:
     """Write ``out/report.md`` (and the figures it shows) for one task run; ``machine`` names
-    the computer it ran on (the caller's description)."""
+    the computer it ran on (the caller's description), ``jobs`` how many models ran at a time."""
+    wall = WallTime(seconds)
     out = Path(out)
     fig_dir = out / "figures"
     fig_dir.mkdir(parents=True, exist_ok=True)
@@ -75,7 +84,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         "",
         f"`softpinn reproduce {plan.task}{' --quick' if plan.quick else ''}` "
         f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); "
-        f"wall time {seconds:.0f} s on {machine}.",
+        f"wall time {WallTime.MARK} s on {machine}"
+        + (f", {jobs} models at a time (`--jobs {jobs}`)." if jobs > 1 else "."),
         "",
         "Errors as in Table III: train and test error are the one-step loss of eq. 8 (eq. 9 "
         "for Hamiltonian models) with λ = 1 per pair, mean ± std over pairs; the prediction "
@@ -132,7 +142,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
     ]
     path = out / "report.md"
     tmp = out / ".report.md.tmp"
-    tmp.write_text("\n".join(lines))
+    tmp.write_text(wall.fill("\n".join(lines)))
     os.replace(tmp, path)
     return path
 

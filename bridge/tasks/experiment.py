@@ -38,9 +38,11 @@ import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from .. import outputs
+from . import parallel
 from .experiment_stages import (
     rate_name,
     stage_bending,
@@ -193,54 +195,100 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
     sim = stages.run("data", {"data": plan.data, "rate": plan.sim_rate},
                      lambda d: stage_simulate(spec, plan, d))
     results: dict[str, Any] = {"data": sim, "rates": {}}
+    imports = {}  # (rate, preprocessing) -> the import stage's result and settings
     for rate in plan.rates:
         rn = rate_name(rate)
-        rec = stages.run(f"record/{rn}", {"data": plan.data, "sensor": plan.sensor,
-                                          "rate": rate},
+        rec = stages.run(f"record/{rn}", _record_settings(plan, rate),
                          lambda d, r=rate: stage_record(spec, plan, r, sim, d))
-        per: dict[str, Any] = {"record": rec, "preprocessing": {}}
+        results["rates"][rn] = {"record": rec, "preprocessing": {}}
         for prep, smooth in plan.preprocessing[rn].items():
-            imp_settings = {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data,
-                            "smooth": smooth, "test": plan.test_trajectories}
+            imp_settings = _import_settings(plan, rec, smooth)
             imp = stages.run(f"import/{rn}/{prep}", imp_settings,
                              lambda d, s=smooth, r=rec: stage_import(spec, plan, r, s, d))
-            entry: dict[str, Any] = {"import": imp, "models": {}}
-            for kind in KINDS:
-                settings = {"import": imp_settings, "model": plan.models[kind],
-                            "samples": plan.samples, "batch": plan.batch_size,
-                            "substeps": plan.substeps[rn], "hold": plan.input_hold,
-                            "seeds": plan.seeds, "float32": plan.float32}
-                tr = stages.run(f"train/{rn}/{prep}/{kind}", settings,
-                                lambda d, k=kind, r=rate, i=imp: stage_train(
-                                    spec, plan, k, r, i, d, progress))
-                pr = stages.run(f"predict/{rn}/{prep}/{kind}",
-                                {"train": settings, "horizon": plan.horizon,
-                                 "reset_every": plan.reset_every},
-                                lambda d, k=kind, r=rate, i=imp, t=tr, c=rec: stage_predict(
-                                    plan, k, r, i, c, t, d))
-                model = {"train": tr, "predict": pr}
-                if kind == "lagrangian":
-                    model["bending"] = stages.run(
-                        f"bending/{rn}/{prep}", {"train": settings,
-                                                 "points": plan.analysis_points},
-                        lambda d, i=imp, t=tr: stage_bending(spec, plan, i, t))
-                entry["models"][kind] = model
-                e = pr["prediction_error_truth"]
-                log(f"{rn}/{prep}/{kind}: prediction error against the true arm "
-                    f"{_fmt(e['mean'])} over {pr['prediction_error']['horizon_s']:g} s")
-            per["preprocessing"][prep] = entry
-        results["rates"][rn] = per
+            imports[rate, prep] = (rec, imp, imp_settings)
+    # the models not trained and analysed yet: with --jobs, in worker processes first
+    work = [(f"{rate_name(rate)}/{prep}/{kind}", _model_worker,
+             (config, str(out), rate, prep, kind), int(plan.models[kind]["epochs"]))
+            for (rate, prep), made in imports.items() for kind in KINDS
+            if parallel.unfinished(lambda st, r=rate, p=prep, k=kind, m=made: model_stages(
+                spec, plan, st, r, p, k, *m, None), out)]
+    if config.jobs > 1:
+        by_workers = parallel.run_models(work, jobs=config.jobs, log=log, progress=progress)
+        stages.ran |= by_workers
+        stages.quiet |= by_workers
+    elif not plan.quick:
+        parallel.suggest_jobs(len(work), log)
+    for (rate, prep), made in imports.items():
+        rn = rate_name(rate)
+        entry: dict[str, Any] = {"import": made[1], "models": {}}
+        for kind in KINDS:
+            model = model_stages(spec, plan, stages, rate, prep, kind, *made, progress)
+            entry["models"][kind] = model
+            e = model["predict"]["prediction_error_truth"]
+            log(f"{rn}/{prep}/{kind}: prediction error against the true arm "
+                f"{_fmt(e['mean'])} over {model['predict']['prediction_error']['horizon_s']:g} s")
+        results["rates"][rn]["preprocessing"][prep] = entry
     seconds = sum(stages.seconds.values()) + (
         time.perf_counter() - t_start - sum(v for k, v in stages.seconds.items()
                                             if k in stages.ran))
     results["stage_seconds"] = dict(stages.seconds)
-    report = write_experiment_report(spec, plan, results, out, seconds=seconds, machine=machine)
+    t_report = time.perf_counter()
+    report = write_experiment_report(spec, plan, results, out, seconds=seconds, machine=machine,
+                                     jobs=config.jobs)
+    seconds += time.perf_counter() - t_report  # the report's figures are part of the run
     write_json(out / "results.json", {"task": "experiment", "quick": plan.quick,
-                                      "seconds": seconds, "machine": machine,
+                                      "seconds": seconds, "jobs": config.jobs, "machine": machine,
                                       "results": results})
     outputs.record(out, outputs.written_files(out))
     log(f"report: {report}")
     return out, report, plan, results, seconds
+
+
+def _record_settings(plan: ExperimentPlan, rate: float) -> dict:
+    return {"data": plan.data, "sensor": plan.sensor, "rate": rate}
+
+
+def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str) -> dict:
+    return {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data, "smooth": smooth,
+            "test": plan.test_trajectories}
+
+def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: str, kind: str,
+                 rec: dict, imp: dict, imp_settings: dict, progress) -> dict:
+    """Train, predict and (the Lagrangian network) the bending matrices of one model on one
+    recording rate and preprocessing, each a resumable stage."""
+    rn = rate_name(rate)
+    settings = {"import": imp_settings, "model": plan.models[kind],
+                "samples": plan.samples, "batch": plan.batch_size,
+                "substeps": plan.substeps[rn], "hold": plan.input_hold,
+                "seeds": plan.seeds, "float32": plan.float32}
+    tr = stages.run(f"train/{rn}/{prep}/{kind}", settings,
+                    lambda d: stage_train(spec, plan, kind, rate, imp, d, progress))
+    pr = stages.run(f"predict/{rn}/{prep}/{kind}",
+                    {"train": settings, "horizon": plan.horizon,
+                     "reset_every": plan.reset_every},
+                    lambda d: stage_predict(plan, kind, rate, imp, rec, tr, d))
+    model = {"train": tr, "predict": pr}
+    if kind == "lagrangian":
+        model["bending"] = stages.run(
+            f"bending/{rn}/{prep}", {"train": settings, "points": plan.analysis_points},
+            lambda d: stage_bending(spec, plan, imp, tr))
+    return model
+
+
+def _model_worker(config: ReproduceConfig, out: str, rate: float, prep: str,
+                  kind: str) -> list[str]:
+    """One model's stages in a ``--jobs`` worker (:mod:`.parallel`); returns the stages it ran."""
+    from softpinn.symbolic.spec import load_spec
+
+    spec = load_spec(config.task)
+    plan = make_experiment_plan(spec, config)
+    rn = rate_name(rate)
+    probe = parallel.Probe(Path(out), lambda _: None)
+    rec = probe.run(f"record/{rn}", _record_settings(plan, rate), None)
+    imp_settings = _import_settings(plan, rec, plan.preprocessing[rn][prep])
+    imp = probe.run(f"import/{rn}/{prep}", imp_settings, None)
+    return parallel.run_in_worker(config, f"{rn}/{prep}/{kind}", out, lambda stages, progress: (
+        model_stages(spec, plan, stages, rate, prep, kind, rec, imp, imp_settings, progress)))
 
 
 def _fmt(x) -> str:

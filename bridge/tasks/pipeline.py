@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import outputs
+from . import parallel
 from .plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan
 from .stages import (
     Stages,
@@ -110,68 +111,86 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     write_json(out / "plan.json", plan.to_dict())
     stages = Stages(out, log)
 
-    data_settings = {"plan_data": plan.data, "fixed": plan.fixed_step}
+    data_settings = parallel.data_settings(plan)
     data = stages.run("data", data_settings, lambda d: stage_data(spec, plan, d))
     results: dict[str, Any] = {"data": data, "variants": {}}
+    if config.jobs > 1:  # every model's stages in worker processes, then gathered below
+        work = parallel.task_models(config, out, plan, data, spec)
+        by_workers = parallel.run_models(work, jobs=config.jobs, log=log, progress=progress)
+        stages.ran |= by_workers
+        stages.quiet |= by_workers
+    elif not plan.quick:
+        parallel.suggest_jobs(len(parallel.task_models(config, out, plan, data, spec)), log)
     credit: dict[str, float] = {}  # training time of runs resumed when already finished
     for variant in plan.variants:
         vres: dict[str, Any] = {"models": {}}
-        files = data["variants"][variant.name]
         for kind in variant.models:
-            key = f"{variant.name}/{kind}"
-            mplan = variant_model(plan, variant, kind, files)
-            # the data settings too: a data set simulated again under the same file name
-            # must not leave models trained on the old one
-            settings = {"model": mplan, "files": files, "data": data_settings,
-                        "batch": plan.batch_size, "seeds": plan.seeds, "float32": plan.float32,
-                        "samples": plan.physics_samples if kind != "blackbox" else None}
-            name = f"train/{variant.name}/{kind}"
-            tr = stages.run(name, settings,
-                            lambda d, k=kind, f=files, m=mplan: stage_train(
-                                spec, plan, k, m, f, d, progress))
-            # a finished run found again takes no time now: count the time it trained
-            trained = sum(float(m.get("seconds", 0.0)) for m in tr["metrics"].get("members", []))
-            credit[name] = max(0.0, trained - stages.seconds[name])
-            pr = stages.run(f"predict/{variant.name}/{kind}",
-                            {"train": settings, "horizon": plan.horizon,
-                             "long": plan.long_horizon, "dt": plan.other_dt},
-                            lambda d, k=kind, f=files, t=tr: stage_predict(plan, k, f, t, d))
-            fl = stages.run(f"floor/{variant.name}/{kind}",
-                            {"files": files, "data": data_settings, "no_forces": True,
-                             "integration": integration(mplan),
-                             "state": "momentum" if kind == "hamiltonian" else "velocity"},
-                            lambda d, k=kind, f=files, m=mplan: stage_floor(spec, k, m, f))
-            mo = stages.run(f"modes/{variant.name}/{kind}", {"train": settings},
-                            lambda d, k=kind, f=files, t=tr: stage_modes(spec, k, f, t))
-            entry = {"train": tr, "predict": pr, "floor": fl, "modes": mo}
-            if kind != "blackbox":
-                entry["analyze"] = stages.run(
-                    f"analyze/{variant.name}/{kind}",
-                    {"train": settings, "points": plan.analysis_points, "every_seed": True,
-                     "force_samples": plan.analysis_points * 10, "accelerations": 3},
-                    lambda d, t=tr, f=files: stage_analyze(spec, plan, t, f, d),
-                )
+            entry, credit_s = model_stages(spec, plan, stages, variant, kind, data,
+                                           data_settings, progress)
+            credit[f"train/{variant.name}/{kind}"] = credit_s
             vres["models"][kind] = entry
-            log(f"{key}: test {pr['test_error']['mean']:.3e}, rollout "
+            pr = entry["predict"]
+            log(f"{variant.name}/{kind}: test {pr['test_error']['mean']:.3e}, rollout "
                 f"{pr['prediction_error']['mean']:.3e} over {plan.horizon:g} s")
         results["variants"][variant.name] = vres
-    # the run's time is that of its stages when they ran (a call that reuses finished stages
-    # reports what they took then), plus this call's own overhead
+    # the run's time: this call's wall time, plus what the stages it reused from earlier calls
+    # took when they ran (stages run here, by this process or its workers, are in the wall time)
     seconds = sum(stages.seconds.values()) + sum(credit.values()) + (
         time.perf_counter() - t_start - sum(
             v for k, v in stages.seconds.items() if k in stages.ran))
     results["stage_seconds"] = {k: v + credit.get(k, 0.0) for k, v in stages.seconds.items()}
     from ..report import write_task_report
 
+    t_report = time.perf_counter()
     report = write_task_report(spec, plan, results, out, seconds=seconds,
-                               machine=machine_description())
+                               machine=machine_description(), jobs=config.jobs)
+    seconds += time.perf_counter() - t_report  # the report's figures are part of the run
     write_json(out / "results.json", {
-        "task": plan.task, "quick": plan.quick, "seconds": seconds,
+        "task": plan.task, "quick": plan.quick, "seconds": seconds, "jobs": config.jobs,
         "machine": machine_description(), "results": results,
     })
     outputs.record(out, outputs.written_files(out))
     log(f"report: {report}")
     return ReproduceResult(config, out, report, plan, results, seconds)
+
+
+def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dict,
+                 data_settings: dict, progress) -> tuple[dict, float]:
+    """Train, predict, floor, modes and (physics models) analyze one model of a variant, each
+    a resumable stage; returns the model's results and the training time of a run found
+    finished (a reused run takes no time now: the report counts the time it trained)."""
+    files = data["variants"][variant.name]
+    mplan = variant_model(plan, variant, kind, files)
+    # the data settings too: a data set simulated again under the same file name must not
+    # leave models trained on the old one
+    settings = {"model": mplan, "files": files, "data": data_settings,
+                "batch": plan.batch_size, "seeds": plan.seeds, "float32": plan.float32,
+                "samples": plan.physics_samples if kind != "blackbox" else None}
+    name = f"train/{variant.name}/{kind}"
+    tr = stages.run(name, settings,
+                    lambda d: stage_train(spec, plan, kind, mplan, files, d, progress))
+    trained = sum(float(m.get("seconds", 0.0)) for m in tr["metrics"].get("members", []))
+    credit = max(0.0, trained - stages.seconds[name])
+    pr = stages.run(f"predict/{variant.name}/{kind}",
+                    {"train": settings, "horizon": plan.horizon,
+                     "long": plan.long_horizon, "dt": plan.other_dt},
+                    lambda d: stage_predict(plan, kind, files, tr, d))
+    fl = stages.run(f"floor/{variant.name}/{kind}",
+                    {"files": files, "data": data_settings, "no_forces": True,
+                     "integration": integration(mplan),
+                     "state": "momentum" if kind == "hamiltonian" else "velocity"},
+                    lambda d: stage_floor(spec, kind, mplan, files))
+    mo = stages.run(f"modes/{variant.name}/{kind}", {"train": settings},
+                    lambda d: stage_modes(spec, kind, files, tr))
+    entry = {"train": tr, "predict": pr, "floor": fl, "modes": mo}
+    if kind != "blackbox":
+        entry["analyze"] = stages.run(
+            f"analyze/{variant.name}/{kind}",
+            {"train": settings, "points": plan.analysis_points, "every_seed": True,
+             "force_samples": plan.analysis_points * 10, "accelerations": 3},
+            lambda d: stage_analyze(spec, plan, tr, files, d),
+        )
+    return entry, credit
 
 
 def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:

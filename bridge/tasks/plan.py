@@ -38,6 +38,7 @@ class ReproduceConfig:
     lbfgs_steps: int | None = None  # overrides every model's L-BFGS iterations
     float32: bool = False
     analysis_points: int | None = None  # sampled q for the analysis (default 200, quick 40)
+    jobs: int = 1  # models trained and analysed side by side, each in a process of its own
 
     def __post_init__(self):
         if self.task not in TASKS + EXPERIMENTS + CHALLENGES:
@@ -50,6 +51,10 @@ class ReproduceConfig:
             if given:
                 raise UserError(f"{', '.join(given)}: the challenges' studies set their own "
                                 "budgets (--quick for small ones); leave these out")
+        if isinstance(self.jobs, bool) or not isinstance(self.jobs, int) or self.jobs < 1:
+            raise UserError(f"--jobs must be an integer >= 1, got {self.jobs!r}")
+        if self.jobs > 1 and self.task in CHALLENGES:
+            raise UserError(f"--jobs: {self.task} runs its models one at a time; leave it out")
         if not isinstance(self.seeds, int) or self.seeds < 1:
             raise UserError(f"--seeds must be an integer >= 1, got {self.seeds!r}")
         if self.epochs is not None and (not isinstance(self.epochs, int) or self.epochs < 1):
@@ -169,6 +174,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         if kind == "hamiltonian":
             m["mass_init"] = "data"  # M⁻¹'s initial diagonal from the data (learn.mass_scale)
         m["equal_steps"] = bool(budget.get("equal_steps", False)) and not quick
+        if "patience" in budget and not quick:  # evaluations without a better test loss
+            m["patience"] = int(budget["patience"])
         if config.epochs is not None:
             m["epochs"] = config.epochs
             m["equal_steps"] = False

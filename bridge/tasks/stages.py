@@ -54,6 +54,7 @@ class Stages:
         self.log = log
         self.seconds: dict[str, float] = {}  # per stage, as measured when it ran
         self.ran: set[str] = set()  # the stages this call ran (not reused)
+        self.quiet: set[str] = set()  # reused without a log line (run by this call's workers)
         self._root = os.path.abspath(out)
 
     def portable(self, x: Any) -> Any:
@@ -78,17 +79,27 @@ class Stages:
             return str(self.out.joinpath(*x[len(OUT_MARK) + 1:].split("/")))
         return x
 
+    def finished(self, name: str, settings: Mapping[str, Any]) -> dict | None:
+        """The stored record (settings, result, seconds) of stage ``name`` if it finished
+        with these settings, else None."""
+        done = self.out / name / "done.json"
+        if not done.is_file():
+            return None
+        stored = json.loads(done.read_text())
+        settings = self.portable(json.loads(json.dumps(settings, default=jsonable)))
+        # records written before paths were stored as $OUT/... are read the same way
+        return stored if self.portable(stored.get("settings")) == settings else None
+
     def run(self, name: str, settings: Mapping[str, Any], fn: Callable[[Path], Any]) -> Any:
         folder = self.out / name
         done = folder / "done.json"
         settings = self.portable(json.loads(json.dumps(settings, default=jsonable)))
-        if done.is_file():
-            stored = json.loads(done.read_text())
-            # records written before paths were stored as $OUT/... are read the same way
-            if self.portable(stored.get("settings")) == settings:
+        stored = self.finished(name, settings)
+        if stored is not None:
+            if name not in self.quiet:
                 self.log(f"[{name}] done before, skipped")
-                self.seconds[name] = float(stored.get("seconds", 0.0))
-                return self.rooted(self.portable(stored["result"]))
+            self.seconds[name] = float(stored.get("seconds", 0.0))
+            return self.rooted(self.portable(stored["result"]))
         folder.mkdir(parents=True, exist_ok=True)
         self.log(f"[{name}] ...")
         t0 = time.perf_counter()
@@ -226,6 +237,7 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
         accel_labels=str(m.get("accel_labels", "recorded")),
         loss_weight=float(m.get("loss_weight", 1.0)),
         eval_every=max(1, int(m["epochs"]) // 50),
+        patience=m.get("patience"),
         checkpoint_every=max(1, int(m["epochs"]) // 10),
     )
     run_dir = folder / "run"

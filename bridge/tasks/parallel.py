@@ -1,0 +1,210 @@
+"""Models side by side: ``softpinn reproduce TASK --jobs N``.
+
+After the data stages, every model of the run (a task's Lagrangian, Hamiltonian or black-box
+network on one of its data sets; the experiment's network on one rate and preprocessing) runs its
+own chain of stages (train, predict, and the analyses: :func:`.pipeline.model_stages`,
+:func:`.experiment.model_stages`) in one of ``N`` worker processes; the chains write to folders
+of their own, so they never touch each other's files. The calling process then gathers every
+model's results from the stages' records (``done.json``) as a second call would, and writes the
+report: a run with ``--jobs`` gives the same files and numbers as one without, sooner.
+
+Workers are fresh processes (``spawn``: JAX cannot be forked once started) that inherit the
+environment (``XLA_FLAGS`` included); their log lines and training progress come back through a
+queue. The first Ctrl-C lets every training finish its epoch and save a checkpoint, as a serial
+run does; a second one stops the workers at once.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import queue as queue_mod
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from .plan import Plan, ReproduceConfig, make_plan
+from .stages import Stages, variant_model
+
+__all__ = ["run_models", "run_in_worker", "task_models", "unfinished"]
+
+#: how long an interrupted run waits for its workers to save their checkpoints
+INTERRUPT_GRACE_S = 120.0
+
+
+class NotDone(Exception):
+    """A stage of a model's chain has not finished with the plan's settings."""
+
+
+class Probe(Stages):
+    """Stages that only read: a stage not finished raises :class:`NotDone`."""
+
+    def run(self, name, settings, fn):
+        if self.finished(name, settings) is None:
+            raise NotDone(name)
+        return super().run(name, settings, fn)
+
+
+class WorkerInterrupted(Exception):
+    """A worker's model was interrupted (Ctrl-C); its training saved a checkpoint."""
+
+
+def data_settings(plan: Plan) -> dict:
+    """The data stage's settings (its record's key), as :func:`.pipeline.reproduce` sets them."""
+    return {"plan_data": plan.data, "fixed": plan.fixed_step}
+
+
+def suggest_jobs(models: int, log: Callable[[str], None]) -> None:
+    """On a machine with cores to spare, say once that ``--jobs`` would use them."""
+    import os
+
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if models > 1 and (cores or 1) > 1:
+        log(f"[models] {models} models, one at a time: --jobs {min(models, cores)} would train "
+            f"{min(models, cores)} side by side on this machine's {cores} cores")
+
+
+def unfinished(chain: Callable[[Stages], object], out: Path) -> bool:
+    """Whether ``chain(stages)`` would run a stage (one has not finished with its settings)."""
+    try:
+        chain(Probe(out, lambda _: None))
+    except NotDone:
+        return True
+    return False
+
+
+# ------------------------------------------------------------------------------ the workers
+
+_QUEUE = None  # the worker's end of the queue (set by _start)
+
+
+def _start(queue) -> None:
+    import signal
+
+    global _QUEUE
+    _QUEUE = queue
+    # Ctrl-C reaches every process of the terminal: a worker heeds it only while it trains
+    # (learn's DeferredInterrupt: finish the epoch, save a checkpoint, stop); the caller stops
+    # the rest
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def run_in_worker(config: ReproduceConfig, key: str, out: str,
+                  body: Callable[[Stages, Callable[[dict], None]], object]) -> list[str]:
+    """In a worker: ``body(stages, progress)`` runs one model's chain in float64, with the run's
+    figure mode, its log lines and training progress sent to the caller under ``key``; returns
+    the names of the stages it ran."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from ..report.figsave import draft_figures
+
+    stages = Stages(Path(out), lambda line: _QUEUE.put(("log", key, line)))
+
+    def progress(info: dict) -> None:
+        _QUEUE.put(("progress", key, info))
+
+    try:
+        with draft_figures(config.quick):
+            body(stages, progress)
+    except KeyboardInterrupt:  # training saved a checkpoint; a plain error crosses the pool
+        raise WorkerInterrupted(f"{key}: interrupted") from None
+    return sorted(stages.ran)
+
+
+def _task_model(config: ReproduceConfig, out: str, variant_name: str, kind: str) -> list[str]:
+    """A task's model (:func:`.pipeline.model_stages`) in a worker; returns the stages it ran."""
+    from softpinn.symbolic.spec import load_spec
+
+    from .pipeline import model_stages
+
+    spec = load_spec(config.task)
+    plan = make_plan(spec, config)
+    settings = data_settings(plan)
+    data = Probe(Path(out), lambda _: None).run("data", settings, None)
+    variant = next(v for v in plan.variants if v.name == variant_name)
+    return run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (
+        model_stages(spec, plan, stages, variant, kind, data, settings, progress)))
+
+
+def task_models(config: ReproduceConfig, out: Path, plan: Plan, data: dict, spec):
+    """The work of :func:`run_models` for a task: ``[(key, function, args, epochs)]`` of every
+    model whose chain has not finished."""
+    from .pipeline import model_stages
+
+    settings = data_settings(plan)
+    work = []
+    for variant in plan.variants:
+        for kind in variant.models:
+            def chain(stages, v=variant, k=kind):
+                return model_stages(spec, plan, stages, v, k, data, settings, None)
+
+            if unfinished(chain, out):
+                epochs = variant_model(plan, variant, kind, data["variants"][variant.name])
+                work.append((f"{variant.name}/{kind}", _task_model,
+                             (config, str(out), variant.name, kind), int(epochs["epochs"])))
+    return work
+
+
+# ------------------------------------------------------------------------------ the caller
+
+
+def run_models(work: list, *, jobs: int, log: Callable[[str], None],
+               progress: Callable[[dict], None] | None) -> set[str]:
+    """Run ``work`` (``[(key, function, args, epochs)]``: a module-level ``function(*args)``
+    runs one model's chain and returns the names of the stages it ran), ``jobs`` at a time;
+    returns the names of every stage the workers ran. ``progress`` gets ``{"phase": "models",
+    "models": {key: epochs}}`` first, then each worker's training events with ``"model": key``
+    added, and ``{"phase": "model-done", "model": key}`` when a model's chain has finished."""
+    if not work:
+        return set()
+    n = min(jobs, len(work))
+    log(f"[models] {len(work)} model(s) to train and analyse, {n} at a time")
+    if progress is not None:
+        progress({"phase": "models", "models": {key: epochs for key, _, _, epochs in work}})
+    ctx = multiprocessing.get_context("spawn")
+    queue = ctx.Queue()
+    pool = ctx.Pool(n, initializer=_start, initargs=(queue,))
+
+    def drain() -> None:
+        while True:
+            try:
+                what, key, payload = queue.get_nowait()
+            except queue_mod.Empty:
+                return
+            if what == "log":
+                log(payload)
+            elif progress is not None:
+                progress({**payload, "model": key})
+
+    ran: set[str] = set()
+    pending = {key: pool.apply_async(fn, args) for key, fn, args, _ in work}
+    try:
+        while pending:
+            drain()
+            for key in [k for k, r in pending.items() if r.ready()]:
+                try:
+                    ran.update(pending.pop(key).get())  # a worker's error is raised here
+                except WorkerInterrupted:  # Ctrl-C reached the worker first
+                    raise KeyboardInterrupt from None
+                if progress is not None:
+                    progress({"phase": "model-done", "model": key})
+            time.sleep(0.1)
+        drain()
+        pool.close()
+        pool.join()
+    except KeyboardInterrupt:
+        log("interrupted: the models in training save a checkpoint (Ctrl-C again: stop now)")
+        try:
+            deadline = time.monotonic() + INTERRUPT_GRACE_S
+            while any(not r.ready() for r in pending.values()) and time.monotonic() < deadline:
+                drain()
+                time.sleep(0.1)
+        finally:
+            pool.terminate()
+            pool.join()
+        raise
+    except BaseException:
+        pool.terminate()
+        pool.join()
+        raise
+    return ran
