@@ -22,10 +22,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from .plan import Plan, ReproduceConfig, make_plan
-from .stages import Stages, variant_model
+from .plan import ReproduceConfig
+from .stages import Stages
 
-__all__ = ["run_models", "run_in_worker", "task_models", "unfinished"]
+__all__ = ["Probe", "run_in_worker", "run_models", "suggest_jobs", "unfinished"]
 
 #: how long an interrupted run waits for its workers to save their checkpoints
 INTERRUPT_GRACE_S = 120.0
@@ -46,11 +46,6 @@ class Probe(Stages):
 
 class WorkerInterrupted(Exception):
     """A worker's model was interrupted (Ctrl-C); its training saved a checkpoint."""
-
-
-def data_settings(plan: Plan) -> dict:
-    """The data stage's settings (its record's key), as :func:`.pipeline.reproduce` sets them."""
-    return {"plan_data": plan.data, "fixed": plan.fixed_step}
 
 
 def suggest_jobs(models: int, log: Callable[[str], None]) -> None:
@@ -109,40 +104,6 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
     except KeyboardInterrupt:  # training saved a checkpoint; a plain error crosses the pool
         raise WorkerInterrupted(f"{key}: interrupted") from None
     return sorted(stages.ran)
-
-
-def _task_model(config: ReproduceConfig, out: str, variant_name: str, kind: str) -> list[str]:
-    """A task's model (:func:`.pipeline.model_stages`) in a worker; returns the stages it ran."""
-    from softpinn.symbolic.spec import load_spec
-
-    from .pipeline import model_stages
-
-    spec = load_spec(config.task)
-    plan = make_plan(spec, config)
-    settings = data_settings(plan)
-    data = Probe(Path(out), lambda _: None).run("data", settings, None)
-    variant = next(v for v in plan.variants if v.name == variant_name)
-    return run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (
-        model_stages(spec, plan, stages, variant, kind, data, settings, progress)))
-
-
-def task_models(config: ReproduceConfig, out: Path, plan: Plan, data: dict, spec):
-    """The work of :func:`run_models` for a task: ``[(key, function, args, epochs)]`` of every
-    model whose chain has not finished."""
-    from .pipeline import model_stages
-
-    settings = data_settings(plan)
-    work = []
-    for variant in plan.variants:
-        for kind in variant.models:
-            def chain(stages, v=variant, k=kind):
-                return model_stages(spec, plan, stages, v, k, data, settings, None)
-
-            if unfinished(chain, out):
-                epochs = variant_model(plan, variant, kind, data["variants"][variant.name])
-                work.append((f"{variant.name}/{kind}", _task_model,
-                             (config, str(out), variant.name, kind), int(epochs["epochs"])))
-    return work
 
 
 # ------------------------------------------------------------------------------ the caller

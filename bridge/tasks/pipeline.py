@@ -111,16 +111,16 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     write_json(out / "plan.json", plan.to_dict())
     stages = Stages(out, log)
 
-    data_settings = parallel.data_settings(plan)
+    data_settings = _data_settings(plan)
     data = stages.run("data", data_settings, lambda d: stage_data(spec, plan, d))
     results: dict[str, Any] = {"data": data, "variants": {}}
     if config.jobs > 1:  # every model's stages in worker processes, then gathered below
-        work = parallel.task_models(config, out, plan, data, spec)
+        work = _unfinished_models(config, out, plan, data, spec)
         by_workers = parallel.run_models(work, jobs=config.jobs, log=log, progress=progress)
         stages.ran |= by_workers
         stages.quiet |= by_workers
     elif not plan.quick:
-        parallel.suggest_jobs(len(parallel.task_models(config, out, plan, data, spec)), log)
+        parallel.suggest_jobs(len(_unfinished_models(config, out, plan, data, spec)), log)
     credit: dict[str, float] = {}  # training time of runs resumed when already finished
     for variant in plan.variants:
         vres: dict[str, Any] = {"models": {}}
@@ -192,6 +192,40 @@ def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dic
         )
     return entry, credit
 
+
+def _data_settings(plan: Plan) -> dict:
+    """The data stage's settings (its record's key)."""
+    return {"plan_data": plan.data, "fixed": plan.fixed_step}
+
+
+def _unfinished_models(config: ReproduceConfig, out: Path, plan: Plan, data: dict, spec) -> list:
+    """The work of :func:`.parallel.run_models`: ``[(key, function, args, epochs)]`` of every
+    model whose chain of stages has not finished."""
+    settings = _data_settings(plan)
+    work = []
+    for variant in plan.variants:
+        for kind in variant.models:
+            def chain(stages, v=variant, k=kind):
+                return model_stages(spec, plan, stages, v, k, data, settings, None)
+
+            if parallel.unfinished(chain, out):
+                m = variant_model(plan, variant, kind, data["variants"][variant.name])
+                work.append((f"{variant.name}/{kind}", _model_worker,
+                             (config, str(out), variant.name, kind), int(m["epochs"])))
+    return work
+
+
+def _model_worker(config: ReproduceConfig, out: str, variant_name: str, kind: str) -> list[str]:
+    """One model's stages in a ``--jobs`` worker (:mod:`.parallel`); returns the stages it ran."""
+    from softpinn.symbolic.spec import load_spec
+
+    spec = load_spec(config.task)
+    plan = make_plan(spec, config)
+    settings = _data_settings(plan)
+    data = parallel.Probe(Path(out), lambda _: None).run("data", settings, None)
+    variant = next(v for v in plan.variants if v.name == variant_name)
+    return parallel.run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (
+        model_stages(spec, plan, stages, variant, kind, data, settings, progress)))
 
 def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:
     """The configuration and output folder a task notebook uses, from the environment:
