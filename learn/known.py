@@ -9,8 +9,7 @@ text), so that a saved run rebuilds it from its ``config.json`` alone, without C
 * ``{"kind": "program", "program": {...}}``: the exact A(q) of a symbolic model as CasADi's SX
   instruction list, written by :mod:`softpinn.bridge.exact.serialize` (format
   ``softpinn-program/1``: operation names, operand indices, constants, output sparsity),
-  replayed in ``jax.numpy`` by :mod:`learn.program` with CasADi's semantics (those of
-  :mod:`softpinn.bridge.exact.translate`).
+  replayed in ``jax.numpy`` by :mod:`learn.program` with CasADi's semantics.
 
 :class:`KnownMatrix` holds either as a static field: the optimizer sees no parameter in it.
 """

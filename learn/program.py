@@ -3,9 +3,10 @@
 :mod:`softpinn.bridge.exact.serialize` writes any SX Function of a symbolic model (the forward
 dynamics of eq. 4, M, G, A, ...) as data of format ``softpinn-program/1``: operation names,
 operand and result indices, constants, and each output's sparsity. This module replays such
-data with CasADi's semantics (those of :mod:`softpinn.bridge.exact.translate`: comparisons
-give 1.0 or 0.0, ``if_else_zero``, ``fmod``, ``remainder``), so that the exact model runs where
-CasADi is not installed: a run's known input matrix (:mod:`learn.known`), or a GPU machine
+data with the semantics of CasADi's generated C (comparisons give 1.0 or 0.0,
+``if_else_zero``, ``fmod``, ``remainder``; :func:`replay` is also what
+:mod:`softpinn.bridge.exact.translate` runs), so that the exact model runs where CasADi is not
+installed: a run's known input matrix (:mod:`learn.known`), or a GPU machine
 (``benchmarks/bench_gpu.py``). Under ``jax.vmap`` each scalar instruction becomes one vector
 operation over the batch; ``jit``, ``grad`` and float32 work as for any JAX function.
 
@@ -23,7 +24,8 @@ from jax import lax
 
 from .errors import UserError
 
-__all__ = ["PROGRAM_FORMAT", "ProgramFunction", "check_program", "run_program"]
+__all__ = ["KNOWN_OPS", "PROGRAM_FORMAT", "ProgramFunction", "check_program", "replay",
+           "run_program"]
 
 PROGRAM_FORMAT = "softpinn-program/1"
 
@@ -117,12 +119,14 @@ def check_program(data: Any, what: str = "program") -> tuple:
     return tuple(frozen), nnz_in, tuple(shapes)
 
 
-def run_program(program: tuple, inputs: Sequence[Any], dtype) -> list:
-    """Replay a :func:`check_program` result on ``inputs`` (one flat array of nonzeros per
-    program input) in ``dtype``; returns each output as a dense (rows, cols) array."""
-    code, _, shapes = program
+def replay(code: Sequence[tuple], inputs: Sequence[Any], nnz_out: Sequence[int],
+           dtype) -> list[list]:
+    """Replay instructions ``(op name, operands, results, constant)`` on ``inputs`` (per
+    input, its nonzeros: an array or a list of scalars) in ``dtype``; returns each output's
+    nonzeros as a list of scalars. The one replay of CasADi's semantics in JAX: this module's
+    programs and :mod:`softpinn.bridge.exact.translate` call it."""
     one, zero = jnp.asarray(1.0, dtype), jnp.asarray(0.0, dtype)
-    values: list[list] = [[zero] * len(s[2]) for s in shapes]
+    values: list[list] = [[zero] * k for k in nnz_out]
     w: dict[int, Any] = {}
     for op, i, o, c in code:
         if op in BINARY:
@@ -141,6 +145,14 @@ def run_program(program: tuple, inputs: Sequence[Any], dtype) -> list:
             w[o[0]] = jnp.where(w[i[0]] == 0, one, zero)
         else:  # IF_ELSE_ZERO
             w[o[0]] = jnp.where(w[i[0]] != 0, w[i[1]], zero)
+    return values
+
+
+def run_program(program: tuple, inputs: Sequence[Any], dtype) -> list:
+    """Replay a :func:`check_program` result on ``inputs`` (one flat array of nonzeros per
+    program input) in ``dtype``; returns each output as a dense (rows, cols) array."""
+    code, _, shapes = program
+    values = replay(code, inputs, [len(s[2]) for s in shapes], dtype)
     outs = []
     for (rows, cols, row, col), vals in zip(shapes, values, strict=True):
         out = jnp.zeros((rows, cols), dtype)

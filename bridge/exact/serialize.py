@@ -28,14 +28,13 @@ from typing import Any
 
 import casadi as ca
 
+from ...learn.program import PROGRAM_FORMAT
 from .errors import TranslationError
 from .translate import Program, translate
 
 __all__ = ["FORMAT", "program_data", "function_data", "casadi_function", "spec_known_input"]
 
-FORMAT = "softpinn-program/1"
-
-_NAME = {getattr(ca, a): a[3:] for a in dir(ca) if a.startswith("OP_")}
+FORMAT = PROGRAM_FORMAT
 
 
 def _constant(c: float) -> float | str:
@@ -48,11 +47,8 @@ def _constant(c: float) -> float | str:
 def program_data(program: Program) -> dict[str, Any]:
     """The JSON-ready data of a :class:`Program` (see the module's docstring)."""
     code = []
-    for op, i, o, const in program.code:
-        name = _NAME.get(op)
-        if name is None:  # Program refuses unknown operations, so this is never reached
-            raise TranslationError(f"{program.name}: CasADi operation {op} has no name")
-        code.append([name, [int(k) for k in i], [int(k) for k in o],
+    for op, i, o, const in program.code:  # op: CasADi's name for it (translate.Program)
+        code.append([op, [int(k) for k in i], [int(k) for k in o],
                      None if const is None else _constant(const)])
     outputs = []
     for name, sp in zip(program.name_out, program.sparsity_out, strict=True):
