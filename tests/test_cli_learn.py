@@ -104,16 +104,22 @@ def test_train_bad_dataset_one_line(change, message, tmp_path, capsys):
     assert message in line and "bad.npz" in line
 
 
-def test_train_mass_init_from_data(data, tmp_path, capsys):
+def test_train_mass_init_from_data(tmp_path, capsys):
     from softpinn.learn.data import load_dataset, mass_scale
 
+    a = simulate("msd", trajectories=3, duration=1.0)
+    a["p"][a["traj"] == 2] *= 10.0  # a held-out trajectory that would move the scale
+    data = write(tmp_path / "d.npz", a)
     out = tmp_path / "h"
     args = ["--model", "hamiltonian", "--width", "8", "--depth", "1", "--epochs", "1",
-            "--test-trajectories", "4", "--quiet", "--mass-init", "data"]  # fmt: skip
+            "--test-trajectories", "2", "--quiet", "--mass-init", "data"]  # fmt: skip
     assert main(["train", str(data), "--out", str(out), *args]) == 0
     cfg = json.loads((out / "config.json").read_text())
-    expected = mass_scale(load_dataset(data), "hamiltonian")
+    loaded = load_dataset(data)
+    # from the training trajectories only, as the pipelines take it: the test one stays unseen
+    expected = mass_scale(loaded, "hamiltonian", [0, 1])
     assert cfg["model"]["mass_init"] == pytest.approx(expected, rel=1e-12)
+    assert expected != pytest.approx(mass_scale(loaded, "hamiltonian"), rel=1e-3)
 
 
 def test_cli_user_errors(run, data, tmp_path, capsys):

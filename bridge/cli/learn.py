@@ -225,7 +225,9 @@ def _enable_x64():
     jax.config.update("jax_enable_x64", True)
 
 
-def _model_config(args, n: int, m: int, data=None):
+def _model_config(args, n: int, m: int, data=None, train_ids=None):
+    """The network's configuration from the flags; ``train_ids``: the training trajectories
+    ``--mass-init data`` reads (None: all of the file's)."""
     from softpinn.learn.data import mass_scale
     from softpinn.learn.errors import UserError
     from softpinn.learn.models import ModelConfig
@@ -249,7 +251,7 @@ def _model_config(args, n: int, m: int, data=None):
         if args.model == "blackbox":
             raise UserError("--mass-init applies to physics models, not --model blackbox")
         if args.mass_init == "data":
-            kw["mass_init"] = mass_scale(data, args.model)
+            kw["mass_init"] = mass_scale(data, args.model, train_ids)
         else:
             try:
                 kw["mass_init"] = float(args.mass_init)
@@ -350,9 +352,13 @@ def cmd_train(args) -> int:
         data = load_dataset(args.data, n=config.model.n, m=config.model.m)
         config = _resumed_with_flags(args, config, data)
     else:
+        from softpinn.learn.data import split_trajectories
+
         data = load_dataset(args.data)
-        mc = _model_config(args, data.n, data.m, data)
         test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
+        # the training split as train() draws it: --mass-init data reads no test trajectory
+        train_ids, _ = split_trajectories(data, test=test, seed=args.split_seed)
+        mc = _model_config(args, data.n, data.m, data, train_ids)
         config = TrainConfig(
             model=mc, test_trajectories=test,
             **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
@@ -426,7 +432,11 @@ def _resumed_with_flags(args, stored, data):
     if given & _MODEL_FLAGS:
         if args.model is None:
             args.model = stored.model.kind
-        changes["model"] = _model_config(args, data.n, data.m, data)
+        from softpinn.learn.data import split_trajectories
+
+        split = changes.get("test_trajectories", stored.test_trajectories)
+        train_ids, _ = split_trajectories(data, test=split, seed=stored.split_seed)
+        changes["model"] = _model_config(args, data.n, data.m, data, train_ids)
     return dataclasses.replace(stored, **changes) if changes else stored
 
 
