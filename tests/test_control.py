@@ -374,3 +374,20 @@ def test_library_errors_are_user_errors(specs):
     mpc = MPC(from_true(tm, tip_output(tm.spec)), MPCConfig(horizon=4, codegen=False))
     with pytest.raises(UserError, match=r"reference: expected shape \(4, 2\)"):
         mpc.solve(np.zeros(2), np.zeros(2), np.zeros((3, 2)), np.zeros(1))
+
+
+def test_controllers_are_named_for_their_model(tmp_path):
+    """A run trained with a known input matrix is named for it (a table reading "hamiltonian"
+    and "hamiltonian-2" would hide which is which); a run and its export get the same name."""
+    from softpinn.bridge.control.compare import _run_kind
+
+    for form, expected in (("network", "hamiltonian"), ("known", "hamiltonian, A known")):
+        model = {"kind": "hamiltonian", "input_form": form}
+        run = tmp_path / f"run-{form}"
+        run.mkdir()
+        (run / "config.json").write_text(json.dumps({"model": model}))
+        export = tmp_path / f"export-{form}"
+        export.mkdir()
+        (export / "model.json").write_text(json.dumps(
+            {"format": "softpinn-export", "kind": "hamiltonian", "training": {"model": model}}))
+        assert _run_kind(run) == _run_kind(export) == expected

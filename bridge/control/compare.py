@@ -287,15 +287,18 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
 
 
 def _run_kind(run) -> str:
-    """The model kind of a run or export directory (its name in the comparison)."""
+    """The model kind of a run or export directory (its name in the comparison): "hamiltonian",
+    or "hamiltonian, A known" for a network trained with a fixed input matrix."""
     directory, what = resolve_run(run)
     try:
         info = json.loads((directory / ("model.json" if what == "export" else
                                         "config.json")).read_text())
         kind = info["kind"] if what == "export" else info["model"]["kind"]
+        model = info["training"]["model"] if what == "export" else info["model"]
     except (OSError, ValueError, KeyError, TypeError):
         raise UserError(f"runs: {run}: its config cannot be read") from None
-    return str(kind)
+    known = isinstance(model, dict) and model.get("input_form") == "known"
+    return f"{kind}, A known" if known else str(kind)
 
 
 def _precheck_out(out: Path, force: bool) -> None:
