@@ -377,17 +377,23 @@ def test_library_errors_are_user_errors(specs):
 
 
 def test_controllers_are_named_for_their_model(tmp_path):
-    """A run trained with a known input matrix is named for it (a table reading "hamiltonian"
-    and "hamiltonian-2" would hide which is which); a run and its export get the same name."""
+    """A run trained with a known input matrix, or a Hamiltonian network trained on velocities,
+    is named for it (a table reading "hamiltonian" and "hamiltonian-2" would hide which is
+    which); a run and its export get the same name."""
     from softpinn.bridge.control.compare import _run_kind
 
-    for form, expected in (("network", "hamiltonian"), ("known", "hamiltonian, A known")):
+    cases = (("network", "data", "hamiltonian"), ("known", "data", "hamiltonian, A known"),
+             ("known", "velocity", "hamiltonian from q̇, A known"),
+             ("network", "velocity", "hamiltonian from q̇"))
+    for i, (form, momenta, expected) in enumerate(cases):
         model = {"kind": "hamiltonian", "input_form": form}
-        run = tmp_path / f"run-{form}"
+        train = {"model": model, "momenta": momenta}
+        run = tmp_path / f"run-{i}"
         run.mkdir()
-        (run / "config.json").write_text(json.dumps({"model": model}))
-        export = tmp_path / f"export-{form}"
+        (run / "config.json").write_text(json.dumps({"model": model, "train": train}))
+        export = tmp_path / f"export-{i}"
         export.mkdir()
         (export / "model.json").write_text(json.dumps(
-            {"format": "softpinn-export", "kind": "hamiltonian", "training": {"model": model}}))
+            {"format": "softpinn-export", "kind": "hamiltonian",
+             "training": {"model": model, "train": train}}))
         assert _run_kind(run) == _run_kind(export) == expected

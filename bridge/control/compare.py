@@ -288,17 +288,23 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
 
 def _run_kind(run) -> str:
     """The model kind of a run or export directory (its name in the comparison): "hamiltonian",
-    or "hamiltonian, A known" for a network trained with a fixed input matrix."""
+    with what sets it apart where the run says so: "hamiltonian from q̇, A known" for one
+    trained on velocities (``--momenta velocity``) with a fixed input matrix."""
     directory, what = resolve_run(run)
     try:
         info = json.loads((directory / ("model.json" if what == "export" else
                                         "config.json")).read_text())
         kind = info["kind"] if what == "export" else info["model"]["kind"]
+        train = info["training"].get("train", {}) if what == "export" else info.get("train", {})
         model = info["training"]["model"] if what == "export" else info["model"]
-    except (OSError, ValueError, KeyError, TypeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         raise UserError(f"runs: {run}: its config cannot be read") from None
-    known = isinstance(model, dict) and model.get("input_form") == "known"
-    return f"{kind}, A known" if known else str(kind)
+    name = str(kind)
+    if kind == "hamiltonian" and isinstance(train, dict) and train.get("momenta") == "velocity":
+        name += " from q̇"
+    if isinstance(model, dict) and model.get("input_form") == "known":
+        name += ", A known"
+    return name
 
 
 def _precheck_out(out: Path, force: bool) -> None:
