@@ -36,6 +36,16 @@ LOSS_KEYS: dict[str, tuple[str, tuple | None]] = {
     "accel_labels": ("str", ("recorded", "differences")),
 }
 
+#: [training.<physics network>]: what the network is built with and how it takes the data, in
+#: every run: ``damping_form`` and ``momenta`` as learn's ModelConfig / TrainConfig name them;
+#: ``known_input = true`` fixes A(q) to this spec's own (the known actuator model of Section
+#: VI-B); ``momenta`` is a Hamiltonian network's alone
+MODEL_KEYS: dict[str, tuple[str, tuple | None]] = {
+    "damping_form": ("str", ("network", "constant", "none")),
+    "known_input": ("bool", None),
+    "momenta": ("str", ("auto", "data", "velocity")),
+}
+
 #: [training.full.<network>]: our budget for full runs -> (kind, allowed values)
 BUDGET_KEYS: dict[str, tuple[str, tuple | None]] = {
     "epochs": ("int", None),
@@ -118,11 +128,16 @@ def parse_recipe(raw: Mapping[str, Any], n: int) -> Recipe:
     for kind in NETWORKS:
         if kind in raw:
             table = _table(raw[kind], f"training.{kind}")
-            _no_unknown(table, set(NETWORK_KEYS[kind]) | set(LOSS_KEYS), f"training.{kind}.")
+            model_keys = ({k for k in MODEL_KEYS if k != "momenta" or kind == "hamiltonian"}
+                          if kind in PHYSICS else set())
+            _no_unknown(table, set(NETWORK_KEYS[kind]) | set(LOSS_KEYS) | model_keys,
+                        f"training.{kind}.")
             net = {}
             for k, v in table.items():
                 if k in LOSS_KEYS:
                     net[k] = _choice(v, *LOSS_KEYS[k], f"training.{kind}.{k}", n)
+                elif k in MODEL_KEYS:
+                    net[k] = _choice(v, *MODEL_KEYS[k], f"training.{kind}.{k}", n)
                 else:
                     net[k] = _value(v, "int" if k == "epochs" else "size",
                                     f"training.{kind}.{k}", n)

@@ -40,6 +40,21 @@ def test_the_full_plan_follows_the_preset():
     assert rate_name(5.0) == "5Hz"
 
 
+@pytest.mark.parametrize("line", ["known_input = true", 'loss = "accel"'])
+def test_recipe_settings_the_experiment_does_not_use_are_refused(tmp_path, line):
+    """A [training.lagrangian] setting the experiment's pipeline would ignore is one line."""
+    from softpinn.bridge.errors import UserError
+    from softpinn.symbolic.spec import preset_path
+
+    text = preset_path("experiment").read_text().replace(
+        "[training.lagrangian]\n", f"[training.lagrangian]\n{line}\n", 1)
+    path = tmp_path / "exp.toml"
+    path.write_text(text)
+    key = line.split()[0]
+    with pytest.raises(UserError, match=rf"\[training.lagrangian\] {key} is not used by"):
+        make_experiment_plan(load_spec(path), ReproduceConfig("experiment"))
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     from softpinn.bridge.tasks import reproduce

@@ -9,9 +9,10 @@ import math
 import pytest
 
 from softpinn.bridge.tasks import ReproduceConfig, make_plan
+from softpinn.learn.models import ModelConfig
 from softpinn.learn.train import TrainConfig
 from softpinn.symbolic import SpecError, load_spec
-from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, Recipe
+from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, MODEL_KEYS, Recipe
 from softpinn.symbolic.spec import preset_path
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
@@ -52,6 +53,16 @@ def _spec_with(tmp_path, training: str, base: str = "task1"):
          "training.full.lagrangian.equal_steps", "true or false"),
         ("[training]\n[training.quick]\nepochs = 2.5\n", "training.quick.epochs",
          "expected an integer"),
+        ("[training]\n[training.lagrangian]\nmomenta = \"velocity\"\n",
+         "training.lagrangian.momenta", "unknown key"),  # a Hamiltonian network's setting
+        ("[training]\n[training.blackbox]\nknown_input = true\n",
+         "training.blackbox.known_input", "unknown key"),
+        ("[training]\n[training.hamiltonian]\nknown_input = \"task4\"\n",
+         "training.hamiltonian.known_input", "true or false"),
+        ("[training]\n[training.hamiltonian]\ndamping_form = \"dense\"\n",
+         "training.hamiltonian.damping_form", "network, constant, none"),
+        ("[training]\n[training.hamiltonian]\nmomenta = \"p\"\n",
+         "training.hamiltonian.momenta", "auto, data, velocity"),
     ],
 )
 def test_bad_training_table_is_refused_naming_file_and_field(tmp_path, training, field,
@@ -85,6 +96,8 @@ def test_recipe_training_keys_are_train_config_fields():
     pipeline_only = {"equal_steps"}  # a pipeline setting: epochs scaled to equal step counts
     assert set(BUDGET_KEYS) - pipeline_only <= fields
     assert set(LOSS_KEYS) <= fields
+    model_fields = {f.name for f in dataclasses.fields(ModelConfig)}
+    assert set(MODEL_KEYS) <= fields | model_fields
 
 
 def test_a_user_recipe_drives_the_plan(tmp_path):
@@ -116,6 +129,66 @@ duration = 3.0
     quick = make_plan(spec, ReproduceConfig("task1", quick=True))
     assert quick.models["hamiltonian"]["epochs"] == 9 and quick.data["duration"] == 3.0
     assert quick.models["hamiltonian"]["loss_weight"] == 0.5  # the loss holds in quick runs
+
+
+def test_a_recipe_fixes_a_known_input_and_the_damping_form(tmp_path, monkeypatch):
+    """[training.<network>] known_input / damping_form / momenta reach the trained model: the
+    stage's TrainConfig carries this spec's exact A(q), the damping's form and the momenta, in
+    full and quick runs alike; Table III's model column says so."""
+    import importlib
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from softpinn.bridge.exact.serialize import spec_known_input
+    from softpinn.bridge.report.task import _model_size
+    from softpinn.bridge.tasks import stages
+
+    path = _spec_with(tmp_path, """[training]
+physics = ["lagrangian", "hamiltonian"]
+[training.lagrangian]
+known_input = true
+[training.hamiltonian]
+known_input = true
+damping_form = "constant"
+momenta = "velocity"
+""", base="task4")
+    spec = load_spec(path)
+    for quick in (False, True):
+        plan = make_plan(spec, ReproduceConfig("task4", quick=quick))
+        lag, ham = plan.models["lagrangian"], plan.models["hamiltonian"]
+        assert lag["known_input"] and lag["mass_init"] == "data"  # M carries the scale
+        assert (ham["known_input"], ham["damping_form"], ham["momenta"]) == (
+            True, "constant", "velocity")
+        assert "mass_init" not in ham  # from velocities: no momenta to take a scale from
+        assert "known_input" not in plan.models["blackbox"]
+    assert _model_size("hamiltonian", ham) == "(16*2)*2 + D const + A known, from q̇"
+    assert _model_size("lagrangian", lag) == "(16*2)*2 + 8*2 + A known"
+
+    # the stage's configuration, caught where training would start
+    seen = {}
+
+    def fake_train(data, tc, run_dir, **kw):
+        seen["tc"] = tc
+        raise RuntimeError("stop")
+
+    # the module (softpinn.learn's attribute of that name is the function)
+    monkeypatch.setattr(importlib.import_module("softpinn.learn.train"), "train", fake_train)
+    rng = np.random.default_rng(0)
+    fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
+                           traj=np.repeat([0, 1], 10))
+    monkeypatch.setattr("softpinn.learn.data.load_dataset", lambda path: fake)
+    files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
+    text = spec_known_input(spec)[0]
+    for kind in ("hamiltonian", "lagrangian"):
+        with pytest.raises(RuntimeError, match="stop"):
+            stages.stage_train(spec, plan, kind, plan.models[kind], files, tmp_path / kind,
+                               progress=None)
+        tc = seen["tc"]
+        assert (tc.model.input_form, tc.model.known_input) == ("known", text)
+        assert tc.momenta == ("velocity" if kind == "hamiltonian" else "auto")
+        assert tc.model.damping_form == ("constant" if kind == "hamiltonian" else "network")
+        assert (tc.model.mass_init is None) == (kind == "hamiltonian")
 
 
 def test_task5_variants_come_from_its_data_and_recipe():

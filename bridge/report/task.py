@@ -33,7 +33,11 @@ def _model_size(kind: str, m: dict) -> str:
     if kind == "blackbox":
         return f"{m['hidden'][0]}*{m['hidden'][1]}"
     mass, d, a = m["mass"], m["damping"], m["input"]
-    return f"({mass[0]}*{mass[1]})*2 + {d[0]}*{d[1]} + {a[0]}*{a[1]}"
+    damping = {"constant": " + D const", "none": ""}.get(m.get("damping_form"),
+                                                         f" + {d[0]}*{d[1]}")
+    actuator = "A known" if m.get("known_input") else f"{a[0]}*{a[1]}"
+    text = f"({mass[0]}*{mass[1]})*2{damping} + {actuator}"
+    return text + (", from q̇" if m.get("momenta") == "velocity" else "")
 
 
 def _epochs(trained: dict) -> int | str:

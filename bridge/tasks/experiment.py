@@ -41,7 +41,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from ...symbolic.recipe import LOSS_KEYS, MODEL_KEYS
 from .. import outputs
+from ..errors import UserError
 from . import parallel
 from .experiment_stages import (
     rate_name,
@@ -124,6 +126,14 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
 
     sensor = sensor_config(spec)
     recipe = spec.recipe
+    # the experiment trains on the imported bending (n = 2) with eq. 8 and learned matrices:
+    # a recipe's loss or model settings would be silently ignored, so they are refused
+    unused = [f"[training.{kind}] {key}" for kind in KINDS
+              for key in recipe.networks.get(kind, {}) if key in LOSS_KEYS or key in MODEL_KEYS]
+    if unused:
+        raise UserError(f"{spec.name}: {unused[0]} is not used by `reproduce experiment` (its "
+                        "networks learn the imported bending with eq. 8 and learned matrices); "
+                        "remove it")
     cfg = data_config(spec)
     data = dict(spec.data)
     quick = config.quick

@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from ...symbolic.recipe import MODEL_KEYS
 from ..errors import UserError
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
@@ -171,8 +172,14 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         m.update({k: recipe.networks.get(kind, {})[k] for k in ("loss", "loss_weight",
                                                                 "accel_labels")
                   if k in recipe.networks.get(kind, {})})
-        if kind == "hamiltonian":
+        # how the network is built and takes the data (a known A, the damping's form, momenta)
+        m.update({k: v for k, v in recipe.networks.get(kind, {}).items() if k in MODEL_KEYS})
+        if kind == "hamiltonian" and m.get("momenta") != "velocity":
             m["mass_init"] = "data"  # M⁻¹'s initial diagonal from the data (learn.mass_scale)
+        elif kind == "lagrangian" and m.get("known_input"):
+            # with A known, M itself carries the data's scale (RESULTS.md: "The start of M
+            # matters with A known")
+            m["mass_init"] = "data"
         m["equal_steps"] = bool(budget.get("equal_steps", False)) and not quick
         if "patience" in budget and not quick:  # evaluations without a better test loss
             m["patience"] = int(budget["patience"])

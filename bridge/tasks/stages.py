@@ -169,10 +169,17 @@ def _model_config(spec, plan: Plan, kind: str, data, train_ids):
         # Started at M⁻¹ ~ I, task4's Hamiltonian network (true M⁻¹ ~ 200) fell at once into
         # M⁻¹ ≈ 0, q̇ ≈ 0 (a test loss stuck at 4.6e-5) and never left it.
         mass_init = mass_scale(data, kind, train_ids)
+    extra = {}
+    if kind != "blackbox":
+        extra["damping_form"] = str(m.get("damping_form", "network"))
+        if m.get("known_input"):  # the recipe's known actuator model: this spec's own A(q)
+            from ..exact.serialize import spec_known_input
+
+            extra.update(input_form="known", known_input=spec_known_input(spec)[0])
     return ModelConfig(
         kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]), potential=tuple(m["potential"]),
         damping=tuple(m["damping"]), input=tuple(m["input"]), hidden=tuple(m["hidden"]),
-        dtype="float32" if plan.float32 else "float64", mass_init=mass_init,
+        dtype="float32" if plan.float32 else "float64", mass_init=mass_init, **extra,
     )
 
 
@@ -236,6 +243,7 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
         loss=str(m.get("loss", "pair")),
         accel_labels=str(m.get("accel_labels", "recorded")),
         loss_weight=float(m.get("loss_weight", 1.0)),
+        momenta=str(m.get("momenta", "auto")),
         eval_every=max(1, int(m["epochs"]) // 50),
         patience=m.get("patience"),
         checkpoint_every=max(1, int(m["epochs"]) // 10),
