@@ -191,6 +191,48 @@ momenta = "velocity"
         assert (tc.model.mass_init is None) == (kind == "hamiltonian")
 
 
+def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
+    """The stage's TrainConfig carries a Hamiltonian network's momenta decided for its data, as
+    train() stores them in config.json, so an interrupted run compares equal and is resumed
+    (with "auto" beside the stored "data" it was trained again from scratch)."""
+    import importlib
+    import json
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from softpinn.bridge.tasks import stages
+
+    spec = load_spec("task4")
+    plan = make_plan(spec, ReproduceConfig("task4", quick=True))
+    seen = {}
+
+    def fake_train(data, tc, run_dir, **kw):
+        seen["tc"], seen["resume"] = tc, kw.get("resume")
+        raise RuntimeError("stop")
+
+    monkeypatch.setattr(importlib.import_module("softpinn.learn.train"), "train", fake_train)
+    rng = np.random.default_rng(0)
+    fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
+                           traj=np.repeat([0, 1], 10), meta={}, path="x.npz")  # simulated p
+    monkeypatch.setattr("softpinn.learn.data.load_dataset", lambda path: fake)
+    files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
+
+    def stage():
+        with pytest.raises(RuntimeError, match="stop"):
+            stages.stage_train(spec, plan, "hamiltonian", plan.models["hamiltonian"], files,
+                               tmp_path, progress=None)
+        return seen["tc"], seen["resume"]
+
+    tc, resume = stage()
+    assert (tc.momenta, tc.model.state_kind, resume) == ("data", "momentum", False)
+    run = tmp_path / "run"  # what an interrupted train() leaves
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps({"train": tc.to_dict()}))
+    (run / "checkpoint.eqx").write_bytes(b"")
+    assert stage() == (tc, True)
+
+
 def test_task5_variants_come_from_its_data_and_recipe():
     plan = make_plan(load_spec("task5"), ReproduceConfig("task5"))
     assert [(v.name, v.models, v.substeps) for v in plan.variants] == [

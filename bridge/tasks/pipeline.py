@@ -227,6 +227,7 @@ def _model_worker(config: ReproduceConfig, out: str, variant_name: str, kind: st
     return parallel.run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (
         model_stages(spec, plan, stages, variant, kind, data, settings, progress)))
 
+
 def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:
     """The configuration and output folder a task notebook uses, from the environment:
     ``SOFTPINN_QUICK`` ("0" for the full run; default quick), ``SOFTPINN_OUT`` (default

@@ -223,6 +223,7 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
     from softpinn.learn.data import load_dataset
     from softpinn.learn.errors import UserError as LearnUserError
     from softpinn.learn.train import TrainConfig, train
+    from softpinn.learn.velocity import resolve_momenta
 
     role = "blackbox" if kind == "blackbox" else "physics"
     f = files[role]
@@ -248,6 +249,9 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
         patience=m.get("patience"),
         checkpoint_every=max(1, int(m["epochs"]) // 10),
     )
+    # as train() stores it (a Hamiltonian network's momenta "auto" decided for these data), so
+    # that an interrupted run's config.json compares equal and the run is resumed
+    tc = resolve_momenta(tc, data)
     run_dir = folder / "run"
     resume = _same_run(run_dir, tc)
     try:
