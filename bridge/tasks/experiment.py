@@ -262,6 +262,7 @@ def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str) -> dict:
     return {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data, "smooth": smooth,
             "test": plan.test_trajectories}
 
+
 def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: str, kind: str,
                  rec: dict, imp: dict, imp_settings: dict, progress) -> dict:
     """Train, predict and (the Lagrangian network) the bending matrices of one model on one
