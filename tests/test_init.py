@@ -6,6 +6,7 @@ spec -> init -> simulate -> CSV -> import for a 3-segment arm."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 
 import numpy as np
@@ -196,3 +197,45 @@ def test_a_data_table_that_makes_identical_trajectories_is_refused(tmp_path, cap
                        r"identical"):
         plan_dataset(spec_from_toml(text, source="same.toml"), trajectories=3)
     plan_dataset(spec_from_toml(text, source="same.toml"), trajectories=1)  # one is fine
+
+
+def test_reproduce_runs_a_spec_file_of_ones_own(tmp_path, capsys, monkeypatch):
+    """`softpinn reproduce arm.toml`: a spec of one's own (no [data], no [training]) runs as a
+    task, its data drawn from its physics; the report has our errors in Table III's columns and
+    names the command; the arm's physics is part of the data's key, so an edited arm makes new
+    data (and so new models) in the same folder."""
+    from softpinn.bridge.tasks.pipeline import _data_settings
+    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan, task_spec
+
+    monkeypatch.chdir(tmp_path)
+    assert run(capsys, "init", "arm", "--segments", 1, "--planar", "--out", "arm.toml")[0] == 0
+    status, out, err = run(capsys, "reproduce", "arm.toml", "--quick", "--epochs", 2,
+                           "--lbfgs-steps", 0, "--out", "runs", "--quiet")
+    assert status == 0, err
+    report = (tmp_path / "runs" / "report.md").read_text()
+    assert "`softpinn reproduce arm.toml --quick`" in report
+    assert "## Errors" in report and "Table III (" not in report and "paper" not in report
+    assert "arm: errors in Table III's columns (Lagrangian physics model)" in report
+    assert "configurations sampled in the data's range" in report
+    done = json.loads((tmp_path / "runs" / "data" / "done.json").read_text())
+    config = ReproduceConfig("arm.toml", quick=True)
+    spec = task_spec("arm.toml")
+    assert done["settings"]["physics"] == spec.physics_dict()
+    mass = spec.segments[0].mass
+    text = (tmp_path / "arm.toml").read_text()
+    (tmp_path / "arm.toml").write_text(text.replace(f"mass = {mass:g}", f"mass = {2 * mass:g}"))
+    edited = task_spec("arm.toml")
+    assert edited.segments[0].mass == 2 * mass
+    assert (_data_settings(make_plan(edited, config), edited)
+            != _data_settings(make_plan(spec, config), spec))
+
+
+def test_reproduce_refuses_a_missing_spec_file(tmp_path, capsys):
+    status, _, err = run(capsys, "reproduce", tmp_path / "nope.toml", "--quick", "--out",
+                         tmp_path / "runs")
+    assert status == 2 and err.count("\n") == 1 and "nope.toml" in err, err
+    assert not (tmp_path / "runs").exists()
+    status, _, err = run(capsys, "reproduce", "task9", "--out", tmp_path / "runs")
+    assert status == 2 and err == ("softpinn: error: task: expected one of task1, task2, task3, "
+                                   "task4, task5, experiment, challenges or a spec file (.toml), "
+                                   "got 'task9'\n"), err

@@ -51,9 +51,10 @@ def register(subparsers) -> None:
         "reproduce",
         help="a paper task end to end: simulate, train, predict, analyze, report",
         description=(
-            "Run one of the paper's five tasks: simulate its data, train the physics model(s) "
-            "and the black-box baseline, predict, analyze the learned matrices and write "
-            "report.md; or its experiment (Section V, Table IV) on a simulated stand-in: an "
+            "Run one of the paper's five tasks, or the same study of an arm of your own (its "
+            "spec file): simulate its data, train the physics model(s) and the black-box "
+            "baseline, predict, analyze the learned matrices and write report.md; or the "
+            "paper's experiment (Section V, Table IV) on a simulated stand-in: an "
             "IMU records a tendon-driven arm, the recordings are imported with each "
             "preprocessing and at each sensor rate (docs/experiment.md); or the paper's open "
             "challenges (Section VI-B: fast Lagrangian training, a known actuator model and "
@@ -61,7 +62,9 @@ def register(subparsers) -> None:
             "Finished stages are skipped when run again with the same settings."
         ),
     )
-    r.add_argument("task", metavar="TASK", help="task1 ... task5, experiment, or challenges")
+    r.add_argument("task", metavar="TASK",
+                   help="task1 ... task5, experiment, challenges, or a spec file of your own "
+                        "arm (ARM.toml: its [data] and [training] recipe, or defaults)")
     r.add_argument("--quick", action="store_true", help="small settings (a minute or two)")
     r.add_argument("--out", required=True,
                    help="output directory (new, empty, or an earlier reproduce's: finished "

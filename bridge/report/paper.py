@@ -74,6 +74,26 @@ def _table_iii_entry(
     ]
 
 
+def paper_task(task: str) -> bool:
+    """Whether the paper's Table III has a row for ``task`` (a spec of the user's has none)."""
+    try:
+        table = load_paper_tables()["table_III"]
+    except (UserError, KeyError):
+        return False
+    return task in table
+
+
+def results_table(ours: Mapping[str, Mapping[str, Any]], *, caption: str = "") -> Table:
+    """Table III's columns for a task the paper does not have (a user's own arm): our rows
+    only, ``ours`` as in :func:`table_iii_comparison`."""
+    for kind in ours:
+        if kind not in _KINDS:
+            raise UserError(f"ours: unknown model kind {kind!r}; expected {list(_KINDS)}")
+    rows = [tuple(["ours", title] + _table_iii_entry(ours[kind], None))
+            for kind, title in _KINDS.items() if kind in ours]
+    return Table(tuple(Span("", c) for c in _TABLE_III_COLUMNS), tuple(rows), caption=caption)
+
+
 def table_iii_comparison(
     task: str,
     ours: Mapping[str, Mapping[str, Any]],

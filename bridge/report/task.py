@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .paper import table_iii_comparison
+from .paper import paper_task, results_table, table_iii_comparison
 from .tables import to_markdown, write_table
 from .task_figures import _rate_figure, _variant_figures
 from .verdict import verdict
@@ -73,6 +73,11 @@ def _ours_entry(kind: str, plan, files: dict, entry: dict) -> dict[str, Any]:
     }
 
 
+def _task_argument(spec, plan) -> str:
+    """The TASK of the command that made the run: a preset's name or the user's spec file."""
+    return plan.task if spec.source.startswith("preset:") else spec.source
+
+
 def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
                       machine: str, jobs: int = 1) -> Path:
     """Write ``out/report.md`` (and the figures it shows) for one task run; ``machine`` names
@@ -86,7 +91,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
     lines = [
         f"# {title}" + ("" if named else f" ({plan.task})"),
         "",
-        f"`softpinn reproduce {plan.task}{' --quick' if plan.quick else ''}` "
+        f"`softpinn reproduce {_task_argument(spec, plan)}{' --quick' if plan.quick else ''}` "
         f"({'quick settings' if plan.quick else 'full run'}), {plan.seeds} seed(s); "
         f"wall time {WallTime.MARK} s on {machine}"
         + (f", {jobs} models at a time (`--jobs {jobs}`)." if jobs > 1 else "."),
@@ -106,18 +111,23 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         models = vres["models"]
         variant = None if vname == "main" else vname
         title = "" if variant is None else f" ({vname} data)"
-        lines += [f"## Table III{title}", ""]
+        in_paper = paper_task(plan.task)
+        lines += [f"## {'Table III' if in_paper else 'Errors'}{title}", ""]
         for kind in physics_kinds:
             if kind not in models:
                 continue
             ours = {"physics": _ours_entry(kind, plan, files, models[kind])}
             if "blackbox" in models:
                 ours["blackbox"] = _ours_entry("blackbox", plan, files, models["blackbox"])
-            table = table_iii_comparison(
-                plan.task, ours, variant=variant,
-                caption=f"{plan.task}{title}: paper's Table III and ours "
-                        f"({_NETWORK[kind]} physics model)",
-            )
+            if in_paper:
+                table = table_iii_comparison(
+                    plan.task, ours, variant=variant,
+                    caption=f"{plan.task}{title}: paper's Table III and ours "
+                            f"({_NETWORK[kind]} physics model)",
+                )
+            else:  # a spec of the user's: Table III's columns, our rows
+                table = results_table(ours, caption=f"{plan.task}{title}: errors in Table "
+                                      f"III's columns ({_NETWORK[kind]} physics model)")
             stem = f"table_iii_{vname}_{kind}"
             write_table(table, out / "tables", stem)
             lines += [to_markdown(table), ""]
@@ -237,9 +247,12 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     s = an["summary"]
     where = "" if vname == "main" else f", {vname} data"
     lines = [f"### {_NETWORK[kind]} model{where}", ""]
+    table_q = "the paper's tables" if paper_task(plan.task) else "the recipe's matrix_q"
+    where_q = (f"{an['points']} configurations sampled in the data's range" if not an["paper_q"]
+               else f"{an['points']} configurations ({an['paper_q']} from {table_q}, the rest "
+               "sampled in the data's range)")
     lines += [
-        f"{an['points']} configurations ({an['paper_q']} from the paper's tables, the rest "
-        "sampled in the data's range). Relative residual ‖P X̂ − X‖/‖X‖ over all of them, "
+        f"{where_q}. Relative residual ‖P X̂ − X‖/‖X‖ over all of them, "
         "and what the total means (recovered ≤ 3 %, approximate ≤ 15 %, else not recovered):",
         "",
         "| transform | M or M⁻¹ | D | G | A | total | match | α | ‖P − αI‖/‖P‖ |",
@@ -256,7 +269,8 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
                             an.get("seeds"))
     lines += _force_lines(report.parent, out)
-    lines += ["", f"Tables at the paper's q, per transform: [{_rel(report, out)}]"
+    at = "at the paper's q" if paper_task(plan.task) else "per configuration"
+    lines += ["", f"Tables {at}, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
     scatter = report.parent / "scatter.png"
     if scatter.is_file():

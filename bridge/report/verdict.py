@@ -9,7 +9,7 @@ from typing import Any
 
 from ..analysis.transform_result import match_word
 from ..errors import UserError
-from .paper import load_paper_tables
+from .paper import load_paper_tables, paper_task
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 
@@ -43,7 +43,8 @@ def verdict(plan, results: dict[str, Any]) -> list[str]:
     says: list[str] = []
     if plan.quick:
         says.append("**This is a quick run**: little data and short training, to check the "
-                    "pipeline in minutes; its numbers are not meant to match the paper's, and "
+                    "pipeline in minutes; its numbers are not meant to match "
+                    f"{'the paper' if paper_task(plan.task) else 'a full run'}'s, and "
                     "may even rank the models the other way (run without `--quick` for that). Its "
                     "figures are screen-resolution drafts; a full run writes 300 dpi PNGs and "
                     "vector PDFs.")

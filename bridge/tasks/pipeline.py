@@ -37,7 +37,7 @@ from typing import Any
 
 from .. import outputs
 from . import parallel
-from .plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan
+from .plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan, task_spec
 from .stages import (
     Stages,
     integration,
@@ -88,8 +88,6 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from softpinn.symbolic.spec import load_spec
-
     log = log or (lambda s: None)
     if config.task in CHALLENGES:  # the open challenges: studies of their own
         from ..challenges.pipeline import run_challenges
@@ -104,14 +102,14 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
         run = run_experiment(config, out_dir, log=log, progress=progress, force=force,
                              machine=machine_description())
         return ReproduceResult(config, *run)
+    spec = task_spec(config.task, log)  # a bad spec file is refused before --out is made
     out = outputs.claim(out_dir, "reproduce", force=force)
     t_start = time.perf_counter()
-    spec = load_spec(config.task)
     plan = make_plan(spec, config)
     write_json(out / "plan.json", plan.to_dict())
     stages = Stages(out, log)
 
-    data_settings = _data_settings(plan)
+    data_settings = _data_settings(plan, spec)
     data = stages.run("data", data_settings, lambda d: stage_data(spec, plan, d))
     results: dict[str, Any] = {"data": data, "variants": {}}
     if config.jobs > 1:  # every model's stages in worker processes, then gathered below
@@ -193,15 +191,20 @@ def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dic
     return entry, credit
 
 
-def _data_settings(plan: Plan) -> dict:
-    """The data stage's settings (its record's key)."""
-    return {"plan_data": plan.data, "fixed": plan.fixed_step}
+def _data_settings(plan: Plan, spec) -> dict:
+    """The data stage's settings (its record's key, and so every later stage's). A spec file of
+    the user's adds its physics: edited, it makes new data and new models (a preset's physics
+    is the package's)."""
+    settings = {"plan_data": plan.data, "fixed": plan.fixed_step}
+    if not spec.source.startswith("preset:"):
+        settings["physics"] = spec.physics_dict()
+    return settings
 
 
 def _unfinished_models(config: ReproduceConfig, out: Path, plan: Plan, data: dict, spec) -> list:
     """The work of :func:`.parallel.run_models`: ``[(key, function, args, epochs)]`` of every
     model whose chain of stages has not finished."""
-    settings = _data_settings(plan)
+    settings = _data_settings(plan, spec)
     work = []
     for variant in plan.variants:
         for kind in variant.models:
@@ -217,11 +220,9 @@ def _unfinished_models(config: ReproduceConfig, out: Path, plan: Plan, data: dic
 
 def _model_worker(config: ReproduceConfig, out: str, variant_name: str, kind: str) -> list[str]:
     """One model's stages in a ``--jobs`` worker (:mod:`.parallel`); returns the stages it ran."""
-    from softpinn.symbolic.spec import load_spec
-
-    spec = load_spec(config.task)
+    spec = task_spec(config.task)
     plan = make_plan(spec, config)
-    settings = _data_settings(plan)
+    settings = _data_settings(plan, spec)
     data = parallel.Probe(Path(out), lambda _: None).run("data", settings, None)
     variant = next(v for v in plan.variants if v.name == variant_name)
     return parallel.run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (

@@ -28,6 +28,30 @@ MIN_WIDTH = 32
 #: model of a task whatever λ it trained with, so the columns compare.
 REPORT_WEIGHT = 1.0
 
+
+def is_spec_file(task: str) -> bool:
+    """Whether ``reproduce``'s TASK names a spec file of the user's (``myarm.toml``, a path
+    ending in .toml) rather than a preset: its ``[data]`` and ``[training]`` recipe are run as a
+    task's."""
+    return str(task).lower().endswith(".toml")
+
+
+def task_spec(task: str, log=None):
+    """The spec a ``reproduce`` of ``task`` runs: a preset, or a spec file of the user's. A spec
+    without a ``[data]`` table gets the data ``softpinn simulate`` would draw for it, scaled to
+    its physics (:mod:`symbolic.defaults`; the summary line goes to ``log``)."""
+    from ...symbolic.spec import load_spec
+
+    spec = load_spec(task)
+    if not spec.data:
+        from ...symbolic.defaults import physics_data_table
+
+        table, summary = physics_data_table(spec)
+        spec = dataclasses.replace(spec, data=table)
+        if log is not None:
+            log(summary)
+    return spec
+
 @dataclass(frozen=True)
 class ReproduceConfig:
     """Settings of one ``reproduce`` call (everything else comes from the task's preset)."""
@@ -42,9 +66,10 @@ class ReproduceConfig:
     jobs: int = 1  # models trained and analysed side by side, each in a process of its own
 
     def __post_init__(self):
-        if self.task not in TASKS + EXPERIMENTS + CHALLENGES:
+        if self.task not in TASKS + EXPERIMENTS + CHALLENGES and not is_spec_file(self.task):
             known = ", ".join(TASKS + EXPERIMENTS + CHALLENGES)
-            raise UserError(f"task: expected one of {known}, got {self.task!r}")
+            raise UserError(f"task: expected one of {known} or a spec file (.toml), got "
+                            f"{self.task!r}")
         if self.task in CHALLENGES:
             given = [flag for flag, v in (("--seeds", self.seeds != 1), ("--epochs", self.epochs),
                                           ("--lbfgs-steps", self.lbfgs_steps),
@@ -106,7 +131,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
     and ``[data]`` tables, and the call's settings. A ``[data]`` table with ``rates`` gives one
     variant per rate (the black box on ``blackbox_rates`` only), and with ``fixed_step_dt`` one
     more on fixed-step RK4 data; otherwise one variant on the data as simulated."""
-    task, quick = config.task, config.quick
+    task, quick = (spec.name if is_spec_file(config.task) else config.task), config.quick
     recipe = spec.recipe
     data = dict(spec.data)
     physics = recipe.physics
