@@ -18,6 +18,10 @@ Every stage writes its results under ``OUT/<stage>/`` and a ``done.json`` holdin
 that made them; a second call with the same settings skips finished stages, so an interrupted
 run loses at most the stage it was in (training itself resumes from its last checkpoint).
 
+The same pipeline runs a spec file of the user's (``reproduce("my-arm.toml")``): its ``[data]``
+table or the defaults from its physics, its ``[training]`` recipe or the recipe's defaults; the
+report then gives our errors in Table III's columns, with no paper rows.
+
 ``quick=True`` runs the same pipeline on small settings (few short trajectories, small nets,
 few epochs) in a minute or two; tests and notebooks use it. Full runs use the paper's network
 sizes and data, with our own, shorter training budgets (the recipe's ``[training.full.*]``

@@ -54,7 +54,8 @@ def task_spec(task: str, log=None):
 
 @dataclass(frozen=True)
 class ReproduceConfig:
-    """Settings of one ``reproduce`` call (everything else comes from the task's preset)."""
+    """Settings of one ``reproduce`` call (everything else comes from the task's preset, or
+    from the spec file ``task`` names: :func:`is_spec_file`)."""
 
     task: str
     quick: bool = False
