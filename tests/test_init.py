@@ -239,3 +239,26 @@ def test_reproduce_refuses_a_missing_spec_file(tmp_path, capsys):
     assert status == 2 and err == ("softpinn: error: task: expected one of task1, task2, task3, "
                                    "task4, task5, experiment, challenges or a spec file (.toml), "
                                    "got 'task9'\n"), err
+
+
+def test_a_full_run_of_ones_own_arm_takes_about_50000_steps(tmp_path):
+    """Without epochs in the recipe, a full run's networks get about DEFAULT_STEPS optimizer
+    steps on the data's training pairs (not 1,000 epochs of whatever the data hold)."""
+    from softpinn.bridge.tasks.plan import DEFAULT_STEPS, ReproduceConfig, make_plan, task_spec
+
+    path = tmp_path / "arm.toml"
+    assert main(["init", "arm", "--segments", "1", "--planar", "--out", str(path)]) == 0
+    spec = task_spec(str(path))
+    plan = make_plan(spec, ReproduceConfig(str(path)))
+    d = spec.data  # the physics defaults: 8 training trajectories of 10 s at 500 Hz
+    pairs = d["train_trajectories"] * (round(d["duration"] * d["rate"]) - 1)
+    steps = -(-pairs // plan.batch_size)
+    for kind in ("lagrangian", "blackbox"):
+        assert plan.models[kind]["epochs"] == round(DEFAULT_STEPS / steps) == 80
+    # a recipe's own epochs win; so does --epochs
+    text = path.read_text() + "\n[training.full.lagrangian]\nepochs = 7\n"
+    path.write_text(text)
+    plan = make_plan(task_spec(str(path)), ReproduceConfig(str(path)))
+    assert plan.models["lagrangian"]["epochs"] == 7 and plan.models["blackbox"]["epochs"] == 80
+    plan = make_plan(task_spec(str(path)), ReproduceConfig(str(path), epochs=3))
+    assert plan.models["lagrangian"]["epochs"] == plan.models["blackbox"]["epochs"] == 3
