@@ -106,12 +106,12 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
     ]
     lines[2:2] = verdict(plan, results)
     physics_kinds = [k for k in plan.models if k != "blackbox"]
+    in_paper = paper_task(plan.task)  # a spec of the user's has no row in Table III
     for vname, vres in results["variants"].items():
         files = results["data"]["variants"][vname]
         models = vres["models"]
         variant = None if vname == "main" else vname
         title = "" if variant is None else f" ({vname} data)"
-        in_paper = paper_task(plan.task)
         lines += [f"## {'Table III' if in_paper else 'Errors'}{title}", ""]
         for kind in physics_kinds:
             if kind not in models:

@@ -28,7 +28,6 @@ MIN_WIDTH = 32
 #: model of a task whatever λ it trained with, so the columns compare.
 REPORT_WEIGHT = 1.0
 
-
 #: A full run's optimizer steps per network where the recipe gives no epochs (a spec of one's
 #: own): task 4's recipe takes 400 epochs of 125 steps, task 1's 600 of 156.
 DEFAULT_STEPS = 50_000
@@ -74,6 +73,7 @@ def task_spec(task: str, log=None):
         if log is not None:
             log(summary)
     return spec
+
 
 @dataclass(frozen=True)
 class ReproduceConfig:
