@@ -74,7 +74,10 @@ class TrainConfig:
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
     ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (20%);
-    ``split_seed`` draws the split and the ``samples`` subset of training pairs (None: all).
+    ``split_seed`` draws the split, the ``samples`` subset of training pairs and the
+    ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each;
+    a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly
+    to evaluate every few epochs).
     ``patience``: stop a member after that many evaluations without a better test loss (None:
     never); the saved model is the one with the best test loss. ``target_loss``: stop a member
     once its test loss is at or below it, in AdamW or L-BFGS (None: never; the time to reach a
@@ -135,6 +138,8 @@ class TrainConfig:
         None, "split", "held-out trajectories: ids, a count, a fraction (default 20%)")
     split_seed: int = _f(0, "split", "seed of the random train/test split of trajectories")
     samples: int | None = _f(None, "split", "train on N randomly chosen pairs (default: all)")
+    test_samples: int | None = _f(None, "split", "evaluate the test loss on N randomly chosen "
+                                  "held-out pairs (default: all)")
     # budget, continued (may change on resume)
     patience: int | None = _f(None, "budget", "early-stopping patience in evaluations "
                               "(default: none)")
@@ -217,10 +222,11 @@ class TrainConfig:
                 or not isinstance(self.target_loss, int | float)
                 or not math.isfinite(self.target_loss) or self.target_loss <= 0):
             raise UserError(f"target_loss: expected a number > 0, got {self.target_loss!r}")
-        if self.samples is not None and (
-                isinstance(self.samples, bool) or not isinstance(self.samples, int)
-                or self.samples < 1):
-            raise UserError(f"samples: expected an integer >= 1, got {self.samples!r}")
+        for name in ("samples", "test_samples"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or not isinstance(value, int)
+                                      or value < 1):
+                raise UserError(f"{name}: expected an integer >= 1, got {value!r}")
         if self.init is not None and (not isinstance(self.init, str) or not self.init):
             raise UserError(f"init: expected a run folder, got {self.init!r}")
         if isinstance(self.test_trajectories, list):

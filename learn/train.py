@@ -243,7 +243,8 @@ def train(
         train_np = make_windows(
             data, train_ids, horizon=h, state=state, samples=config.samples, seed=config.split_seed
         )
-        test_np = make_windows(data, test_ids, horizon=h, state=state)
+        test_np = make_windows(data, test_ids, horizon=h, state=state,
+                               samples=config.test_samples, seed=config.split_seed)
         train_pairs, test_pairs = to_windows(train_np, dtype), to_windows(test_np, dtype)
     else:
         accel = config.accel_labels
@@ -251,7 +252,8 @@ def train(
             data, train_ids, state=state, samples=config.samples, seed=config.split_seed,
             accel=accel,
         )
-        test_np = make_pairs(data, test_ids, state=state, accel=accel)
+        test_np = make_pairs(data, test_ids, state=state, samples=config.test_samples,
+                             seed=config.split_seed, accel=accel)
         if config.loss != "accel":
             train_np = train_np._replace(xdot0=None)
             test_np = test_np._replace(xdot0=None)

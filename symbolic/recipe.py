@@ -53,6 +53,7 @@ BUDGET_KEYS: dict[str, tuple[str, tuple | None]] = {
     "lr": ("float", None),
     "equal_steps": ("bool", None),
     "patience": ("int", None),
+    "test_samples": ("int", None),
 }
 
 #: [training.quick]: the quick settings (``reproduce --quick``): data and budget

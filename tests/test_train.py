@@ -232,6 +232,34 @@ def test_early_stopping_keeps_best(msd, tmp_path):
     assert hist[-1]["epoch"] - m["best_epoch"] == 2
 
 
+def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_path):
+    # the test loss on a subset: the metrics count it, and the best test loss is the mean eq. 8
+    # error of the best model on exactly those pairs (make_pairs' draw with the split seed); a
+    # subset at least as large as the test set is the whole test set
+    from softpinn.learn.data import make_pairs, split_trajectories
+
+    base = dict(epochs=2, test_trajectories=[3, 4], **F32)
+    full = train(msd, blackbox_train_config(**base), tmp_path / "full")
+    total = full.metrics["test_pairs"]
+    sub = train(msd, blackbox_train_config(test_samples=50, **base), tmp_path / "sub")
+    assert sub.metrics["test_pairs"] == 50 < total
+    _, test_ids = split_trajectories(msd, test=[3, 4], seed=0)
+    all_pairs = make_pairs(msd, test_ids)
+    some = make_pairs(msd, test_ids, samples=50, seed=0)
+    assert np.isin(some.x0[:, 0], all_pairs.x0[:, 0]).all()
+    from softpinn.learn.losses import Pairs
+    from softpinn.learn.predict import one_step_errors
+
+    pairs = Pairs(*(jnp.asarray(a, jnp.float32) for a in some[:5]), None)
+    best = sub.metrics["best_test_loss"]["mean"]
+    assert float(np.mean(one_step_errors(sub.model, pairs))) == pytest.approx(best, rel=1e-4)
+    assert best != full.metrics["best_test_loss"]["mean"]
+    same = train(msd, blackbox_train_config(test_samples=10 * total, **base), tmp_path / "same")
+    assert same.metrics["test_pairs"] == total
+    assert [r["test_loss"] for r in same.members[0].history] == \
+        [r["test_loss"] for r in full.members[0].history]
+
+
 def test_target_loss_stops_a_member_when_reached(msd, tmp_path):
     # a first run gives the loss curve; a target between its start and its best stops the
     # same run (same seed and settings) at the first evaluation at or below it
@@ -329,6 +357,10 @@ def test_bad_config_values():
         for bad in (float("nan"), float("inf")):
             with pytest.raises(UserError, match=rf"{name}: expected a finite number"):
                 blackbox_train_config(**{name: bad})
+    for bad in (0, -3, 2.5, True):
+        with pytest.raises(UserError, match=rf"test_samples: expected an integer >= 1, got "
+                                            rf"{bad!r}"):
+            blackbox_train_config(test_samples=bad)
     with pytest.raises(UserError, match="warmup: expected a fraction"):
         blackbox_train_config(warmup=float("nan"))
     cfg = blackbox_train_config(test_trajectories=[1, 2])
