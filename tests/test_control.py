@@ -220,8 +220,11 @@ def test_a_stiff_model_gets_more_substeps(specs):
 def test_circle_and_step_on_a_spatial_arm():
     """task 4 with the true model: the tip follows a horizontal circle to a tenth of a mm and
     settles on a step target (the reference holds it past the end: no step is anticipated)."""
+    totals, steps = [], []
     result = compare("task4", [], None, references=("circle", "step"), duration=0.4,
-                     config=MPCConfig(horizon=10), include_linear=False)
+                     config=MPCConfig(horizon=10), include_linear=False,
+                     progress=lambda: steps.append(len(totals)), progress_total=totals.append)
+    assert totals == [40] and steps == [1] * 40  # the bar's total, told before the first step
     step = result["results"]["step"]["true"]
     assert step["error_max"] > 1e-3 and step["error_final"] < 1e-6, step
     m = result["results"]["circle"]["true"]

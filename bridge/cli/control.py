@@ -152,6 +152,7 @@ def cmd_control(args) -> int:
             duration=args.duration, include_true=not args.no_true,
             include_linear=not args.no_linear, member=args.member, mean=args.mean,
             force=args.force, compiler=args.compiler, log=bar.write, progress=bar.update,
+            progress_total=bar.set_total,
         )
     finally:
         bar.close()
@@ -170,7 +171,10 @@ class _LazyBar:
     it stays one line); ``write`` prints a line above it. Nothing with ``quiet``."""
 
     def __init__(self, desc: str, *, quiet: bool):
-        self.desc, self.quiet, self.bar = desc, quiet, None
+        self.desc, self.quiet, self.bar, self.total = desc, quiet, None, None
+
+    def set_total(self, total: int) -> None:
+        self.total = total
 
     def update(self) -> None:
         if self.quiet:
@@ -178,7 +182,8 @@ class _LazyBar:
         if self.bar is None:
             from tqdm.auto import tqdm
 
-            self.bar = tqdm(desc=self.desc, unit="step", file=sys.stderr, leave=False)
+            self.bar = tqdm(desc=self.desc, total=self.total, unit="step", file=sys.stderr,
+                            leave=False)
         self.bar.update()
 
     def write(self, line: str) -> None:

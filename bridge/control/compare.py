@@ -129,7 +129,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
             member: int | None = None, mean: bool = False, force: bool = False,
             names: Sequence[str] | None = None, compiler=None,
             log: Callable[[str], None] | None = None,
-            progress: Callable[[], None] | None = None) -> dict:
+            progress: Callable[[], None] | None = None,
+            progress_total: Callable[[int], None] | None = None) -> dict:
     """Compare MPC with each prediction model on the plant ``model`` (a preset name, spec file
     or :class:`~softpinn.symbolic.spec.ModelSpec`); returns what ``results.json`` holds.
 
@@ -139,7 +140,9 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     default: the middle of the spec's initial coordinates) with ``radius`` (in q's first two
     coordinates); one circle takes ``period`` s, each step is held ``hold`` s; ``duration``
     overrides both lengths. ``out``: the folder written (None: nothing is written).
-    ``log``: called with one line per finished simulation. ``progress``: once per step.
+    ``log``: called with one line per finished simulation. ``progress``: once per step;
+    ``progress_total``: once, before the first step, with the number of steps of all the
+    simulations (controllers x references).
     """
     from softpinn import __version__
     from softpinn.symbolic.model import TrueModel
@@ -236,6 +239,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     plant_fn = plant(tm, config.dt)
 
     controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}
+    if progress_total is not None:
+        progress_total(len(models) * sum(int(ref["steps"]) for ref in refs.values()))
     for pm in models:
         t0 = time.perf_counter()
         mpc = MPC(pm, config, operating_point=(qc, np.zeros(spec.n), uc), compiler=compiler)
