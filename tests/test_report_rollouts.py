@@ -9,6 +9,7 @@ import pytest
 from softpinn.bridge.report.rollouts import (
     coordinate_unit,
     diverged_at,
+    finite_percentile,
     finite_points,
     rollout_figure,
 )
@@ -17,6 +18,24 @@ from softpinn.bridge.report.rollouts import (
 def _truth(n=3, samples=200):
     t = np.linspace(0.0, 2.0, samples)
     return t, np.stack([np.sin((i + 1) * t) for i in range(n)], axis=1)
+
+
+def test_finite_percentile_is_nanpercentile_over_the_finite_entries():
+    """The shading's percentiles: numpy's nanpercentile (non-finite entries as NaN) column by
+    column, to rounding; a column with no finite entry gives NaN, one with one entry that."""
+    rng = np.random.default_rng(0)
+    a = rng.lognormal(size=(9, 300))
+    a[rng.random(a.shape) < 0.3] = np.nan
+    a[rng.random(a.shape) < 0.1] = np.inf
+    a[:, 7] = np.inf  # every trajectory diverged here
+    a[1:, 8] = np.nan  # one left
+    a[:, 9] = 2.0  # ties
+    for p in (0, 10, 50, 90, 100):
+        got = finite_percentile(a, p)
+        with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
+            want = np.nanpercentile(np.where(np.isfinite(a), a, np.nan), p, axis=0)
+        np.testing.assert_allclose(got, want, rtol=1e-13, atol=0)
+        assert np.isnan(got[7]) and got[8] == a[0, 8] and got[9] == 2.0
 
 
 def test_diverged_at_finds_non_finite_and_runaway_samples():

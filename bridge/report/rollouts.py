@@ -8,7 +8,6 @@ reaches a log axis (matplotlib's log axis fails on infinity: issue 15's task4 cr
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
@@ -32,6 +31,26 @@ def coordinate_unit(name: str, kind: str) -> str:
     if base in ("dL", "dx", "dy") or kind == "mass-spring-damper":
         return "m"
     return ""
+
+
+def finite_percentile(a: np.ndarray, p: float) -> np.ndarray:
+    """The ``p``-th percentile of each column of ``a`` (2-D) over its finite entries, as
+    ``np.nanpercentile(a, p, axis=0)`` with non-finite entries as NaN (linear interpolation);
+    NaN for a column with none. Vectorised: numpy's nanpercentile runs a Python loop per column
+    once any NaN is present, 55 of the 139 s of task 5's report (10 s rollouts at 1000 Hz)."""
+    a = np.asarray(a, float)
+    finite = np.isfinite(a)
+    s = np.sort(np.where(finite, a, np.inf), axis=0)  # the finite first, in order
+    count = finite.sum(axis=0)
+    pos = (p / 100.0) * np.maximum(count - 1, 0)
+    lo = np.floor(pos).astype(int)
+    hi = np.minimum(lo + 1, np.maximum(count - 1, 0))
+    cols = np.arange(a.shape[1])
+    frac = pos - lo
+    with np.errstate(invalid="ignore"):
+        v = s[lo, cols] * (1.0 - frac) + s[hi, cols] * frac
+        v = np.where(frac == 0.0, s[lo, cols], v)  # no inf * 0 at an exact rank
+    return np.where(count > 0, v, np.nan)
 
 
 def diverged_at(q_pred: np.ndarray, q_true: np.ndarray) -> int | None:
@@ -111,10 +130,7 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
         if berr.ndim != 2 or berr.shape[0] < 2 or bt.size < 2:
             continue
         keep = (bt > bt[0]) & (bt - bt[0] <= t[-1] - t[0] + 1e-12)
-        with np.errstate(invalid="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # all-inf columns (diverged)
-            lo, hi = (np.nanpercentile(np.where(np.isfinite(berr), berr, np.nan), p, axis=0)
-                      for p in (10, 90))
+        lo, hi = (finite_percentile(berr, p) for p in (10, 90))
         ok = keep & np.isfinite(lo) & np.isfinite(hi)
         if ok.any():
             err_ax.fill_between(t[0] + bt[ok] - bt[0], np.maximum(lo[ok], 1e-16),
