@@ -46,6 +46,12 @@ MODEL_KEYS: dict[str, tuple[str, tuple | None]] = {
     "momenta": ("str", ("auto", "data", "velocity")),
 }
 
+#: [training.<network>]: how the network steps a data interval, in every run: ``max_step`` [s]
+#: overrides [training]'s for this network (its sub-steps: ceil(data step / max_step))
+STEP_KEYS: dict[str, tuple[str, tuple | None]] = {
+    "max_step": ("float", None),
+}
+
 #: [training.full.<network>]: our budget for full runs -> (kind, allowed values)
 BUDGET_KEYS: dict[str, tuple[str, tuple | None]] = {
     "epochs": ("int", None),
@@ -131,12 +137,14 @@ def parse_recipe(raw: Mapping[str, Any], n: int) -> Recipe:
             table = _table(raw[kind], f"training.{kind}")
             model_keys = ({k for k in MODEL_KEYS if k != "momenta" or kind == "hamiltonian"}
                           if kind in PHYSICS else set())
-            _no_unknown(table, set(NETWORK_KEYS[kind]) | set(LOSS_KEYS) | model_keys,
-                        f"training.{kind}.")
+            _no_unknown(table, set(NETWORK_KEYS[kind]) | set(LOSS_KEYS) | set(STEP_KEYS)
+                        | model_keys, f"training.{kind}.")
             net = {}
             for k, v in table.items():
                 if k in LOSS_KEYS:
                     net[k] = _choice(v, *LOSS_KEYS[k], f"training.{kind}.{k}", n)
+                elif k in STEP_KEYS:
+                    net[k] = _choice(v, *STEP_KEYS[k], f"training.{kind}.{k}", n)
                 elif k in MODEL_KEYS:
                     net[k] = _choice(v, *MODEL_KEYS[k], f"training.{kind}.{k}", n)
                 else:

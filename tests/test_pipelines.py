@@ -269,6 +269,9 @@ def test_plans_follow_the_paper():
     assert [variant_model(t5, v, "lagrangian")["substeps"] for v in t5.variants] == [
         1, 3, 2, 1]
     assert t5.models["lagrangian"]["substeps"] == 1
+    # its black box steps each 10 ms pair in one (its own max_step, as the paper steps pairs)
+    assert [variant_model(t5, v, "blackbox")["substeps"] for v in t5.variants
+            if "blackbox" in v.models] == [1, 1]
     # as many optimizer steps on the 50 Hz data's 23,992 pairs as on 45,000 elsewhere
     fifty = next(v for v in t5.variants if v.name == "50Hz")
     files = {"physics": {"samples": 23992}}

@@ -8,7 +8,7 @@ import math
 
 import pytest
 
-from softpinn.bridge.tasks import ReproduceConfig, make_plan
+from softpinn.bridge.tasks import ReproduceConfig, make_plan, variant_model
 from softpinn.learn.models import ModelConfig
 from softpinn.learn.train import TrainConfig
 from softpinn.symbolic import SpecError, load_spec
@@ -63,6 +63,10 @@ def _spec_with(tmp_path, training: str, base: str = "task1"):
          "training.hamiltonian.damping_form", "network, constant, none"),
         ("[training]\n[training.hamiltonian]\nmomenta = \"p\"\n",
          "training.hamiltonian.momenta", "auto, data, velocity"),
+        ("[training]\n[training.blackbox]\nmax_step = 0.0\n", "training.blackbox.max_step",
+         "positive"),
+        ("[training]\n[training.blackbox]\nmax_step = \"10 ms\"\n",
+         "training.blackbox.max_step", "expected a number"),
     ],
 )
 def test_bad_training_table_is_refused_naming_file_and_field(tmp_path, training, field,
@@ -231,6 +235,34 @@ def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
     (run / "config.json").write_text(json.dumps({"train": tc.to_dict()}))
     (run / "checkpoint.eqx").write_bytes(b"")
     assert stage() == (tc, True)
+
+
+def test_a_network_steps_by_its_own_max_step(tmp_path):
+    """[training.<network>] max_step: that network's sub-steps per data interval, on every
+    rate of a multi-rate [data] table, in place of [training]'s; the others keep theirs, and
+    the report's integration sentence says so."""
+    from softpinn.bridge.report.task import _integration_sentence
+
+    text = preset_path("task5").read_text()
+    head, training = text[: text.index("[training]")], text[text.index("[training]"):]
+    training = training.replace("[training.blackbox]\n", "[training.blackbox]\nmax_step = 0.012\n")
+    path = tmp_path / "arm.toml"
+    path.write_text(head + training)
+    plan = make_plan(load_spec(path), ReproduceConfig("task5"))
+    steps = {v.name: {k: variant_model(plan, v, k)["substeps"] for k in v.models}
+             for v in plan.variants}
+    assert steps == {"fixed_0.0002s": {"lagrangian": 1, "blackbox": 1},
+                     "50Hz": {"lagrangian": 3}, "100Hz": {"lagrangian": 2, "blackbox": 1},
+                     "1000Hz": {"lagrangian": 1}}
+    assert "max_step" not in variant_model(plan, plan.variants[2], "blackbox")
+    sentence = _integration_sentence(plan)
+    assert "the 100Hz data with 2" in sentence
+    assert "The black box network steps by its own longest step, 0.012 s: 1 on the 100Hz " \
+           "data." in sentence
+    # a longest step shorter than the data's: sub-steps of its own (ceil(0.01 / 0.004) = 3)
+    path.write_text(head + training.replace("max_step = 0.012", "max_step = 0.004"))
+    plan = make_plan(load_spec(path), ReproduceConfig("task5"))
+    assert variant_model(plan, plan.variants[2], "blackbox")["substeps"] == 3
 
 
 def test_task5_variants_come_from_its_data_and_recipe():

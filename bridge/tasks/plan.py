@@ -219,6 +219,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
                 m[name] = (max(m[name][0], MIN_WIDTH), m[name][1])
         m["paper_epochs"] = recipe.network(kind, "epochs")
         m.update(substeps=recipe.substeps, input_hold=recipe.input_hold)
+        if "max_step" in recipe.networks.get(kind, {}):  # this network's own longest RK4 step
+            m["max_step"] = float(recipe.networks[kind]["max_step"])
         # the loss a network learns from (eq. 8/9 unless the recipe says otherwise)
         m.update({k: recipe.networks.get(kind, {})[k] for k in ("loss", "loss_weight",
                                                                 "accel_labels")

@@ -202,9 +202,15 @@ def variant_model(plan: Plan, variant: Variant, kind: str,
     """The plan of model ``kind`` as trained on ``variant``: its own sub-steps, if any, and,
     for a budget marked ``equal_steps``, as many optimizer steps as on ``physics_samples``
     pairs where the variant's training data (``files``) hold fewer (task5's 50 Hz data: 24,000
-    samples, so 375 epochs where the others take 200)."""
+    samples, so 375 epochs where the others take 200). A network with a ``max_step`` of its
+    own (``[training.<network>]``) takes its sub-steps from that, not from the variant's."""
     m = dict(plan.models[kind])
-    if variant.substeps is not None:
+    own = m.pop("max_step", None)
+    if own is not None:
+        if variant.rate:
+            m["substeps"] = max(int(m["substeps"]),
+                                math.ceil(1.0 / variant.rate / own - 1e-9))
+    elif variant.substeps is not None:
         m["substeps"] = max(int(m["substeps"]), variant.substeps)
     target = plan.physics_samples
     if m.pop("equal_steps", False) and target and files is not None and kind != "blackbox":
