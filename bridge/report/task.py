@@ -176,10 +176,20 @@ def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
+    from .figsave import is_draft
+
     # spawn: this process may hold JAX's threads, which fork does not survive
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        done = [pool.submit(_variant_figures, *a) for a in args]
+        done = [pool.submit(_variant_figures_drafted, is_draft(), *a) for a in args]
         return {v: f.result() for v, f in zip(names, done, strict=True)}
+
+
+def _variant_figures_drafted(draft: bool, *args) -> list[str]:
+    """:func:`_variant_figures` in a worker process, drafts as in the caller's."""
+    from .figsave import draft_figures
+
+    with draft_figures(draft):
+        return _variant_figures(*args)
 
 
 def _modes_lines(models: dict) -> list[str]:
