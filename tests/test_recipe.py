@@ -245,6 +245,7 @@ def test_a_network_steps_by_its_own_max_step(tmp_path):
 
     text = preset_path("task5").read_text()
     head, training = text[: text.index("[training]")], text[text.index("[training]"):]
+    training = training.replace("max_step = 0.01\n", "")  # the preset's black box's own
     training = training.replace("[training.blackbox]\n", "[training.blackbox]\nmax_step = 0.012\n")
     path = tmp_path / "arm.toml"
     path.write_text(head + training)
@@ -257,12 +258,32 @@ def test_a_network_steps_by_its_own_max_step(tmp_path):
     assert "max_step" not in variant_model(plan, plan.variants[2], "blackbox")
     sentence = _integration_sentence(plan)
     assert "the 100Hz data with 2" in sentence
-    assert "The black box network steps by its own longest step, 0.012 s: 1 on the 100Hz " \
-           "data." in sentence
-    # a longest step shorter than the data's: sub-steps of its own (ceil(0.01 / 0.004) = 3)
+    assert "The black box network steps by its own longest step, 0.012 s: 1 on the " \
+           "fixed_0.0002s data, 1 on the 100Hz data." in sentence
+    # a longest step shorter than the data's: sub-steps of its own (ceil(0.01 / 0.004) = 3),
+    # on the fixed-step data too (their 0.2 ms samples over 0.1 ms: 2)
     path.write_text(head + training.replace("max_step = 0.012", "max_step = 0.004"))
     plan = make_plan(load_spec(path), ReproduceConfig("task5"))
     assert variant_model(plan, plan.variants[2], "blackbox")["substeps"] == 3
+    path.write_text(head + training.replace("max_step = 0.012", "max_step = 0.0001"))
+    plan = make_plan(load_spec(path), ReproduceConfig("task5"))
+    assert variant_model(plan, plan.variants[0], "blackbox")["substeps"] == 2
+
+
+def test_max_step_on_a_single_data_set(tmp_path):
+    """One data set (task 4: 200 Hz, 5 ms): [training]'s max_step gives every model its
+    sub-steps, a network's own max_step that network's (it was ignored without rates)."""
+    text = preset_path("task4").read_text()
+    head, training = text[: text.index("[training]")], text[text.index("[training]"):]
+    training = training.replace("[training]\n", "[training]\nmax_step = 0.002\n", 1)
+    training = training.replace("[training.blackbox]\n", "[training.blackbox]\nmax_step = 0.001\n")
+    path = tmp_path / "arm.toml"
+    path.write_text(head + training)
+    plan = make_plan(load_spec(path), ReproduceConfig("task4"))
+    (main,) = plan.variants
+    assert main.substeps == 3  # ceil(5 / 2)
+    assert {k: variant_model(plan, main, k)["substeps"] for k in main.models} == {
+        "lagrangian": 3, "hamiltonian": 3, "blackbox": 5}
 
 
 def test_task5_variants_come_from_its_data_and_recipe():

@@ -11,7 +11,6 @@ another step size (Figs. 24-25) and, for Task 5, the error against the sampling 
 from __future__ import annotations
 
 import json
-import math
 import os
 import warnings
 from pathlib import Path
@@ -19,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from ..tasks.plan import data_step, own_substeps
 from .paper import paper_task, results_table, table_iii_comparison
 from .tables import to_markdown, write_table
 from .task_figures import _rate_figure, _variant_figures
@@ -268,8 +268,8 @@ def _integration_sentence(plan) -> str:
     for k, m in plan.models.items():  # a network with a longest step of its own
         if m.get("max_step") is None:
             continue
-        steps = [f"{max(int(m.get('substeps', 1)), math.ceil(1.0 / v.rate / m['max_step'] - 1e-9))}"
-                 f" on the {v.name} data" for v in plan.variants if k in v.models and v.rate]
+        steps = [f"{own_substeps(m, data_step(plan, v))} on the {v.name} data"
+                 for v in plan.variants if k in v.models]
         if steps:
             text += (f" The {_NETWORK[k]} network steps by its own longest step, "
                      f"{m['max_step']:g} s: " + ", ".join(steps) + ".")

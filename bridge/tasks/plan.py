@@ -150,6 +150,21 @@ class Plan:
         return json.loads(json.dumps(dataclasses.asdict(self), default=list))
 
 
+def data_step(plan: Plan, variant: Variant) -> float:
+    """The time between two samples of a variant's data [s]: its rate's, the fixed-step data's
+    output step, or the single data set's [data] rate (default 100 Hz)."""
+    if variant.rate:
+        return 1.0 / variant.rate
+    if variant.source == "rk4" and plan.fixed_step:
+        return 1.0 / float(plan.fixed_step["rate"])
+    return 1.0 / float(plan.data.get("rate", 100.0))
+
+
+def own_substeps(m: Mapping[str, Any], step: float) -> int:
+    """RK4 sub-steps of a model plan ``m`` with a ``max_step`` of its own over a data step."""
+    return max(int(m.get("substeps", 1)), math.ceil(step / float(m["max_step"]) - 1e-9))
+
+
 def make_plan(spec, config: ReproduceConfig) -> Plan:
     """The plan of a task run from its spec's recipe (``[training]``, :mod:`symbolic.recipe`)
     and ``[data]`` tables, and the call's settings. A ``[data]`` table with ``rates`` gives one
@@ -193,7 +208,11 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
                                     sub if sub and sub > 1 else None))
         variants = tuple(variants)
     else:
-        variants = (Variant("main", "cvodes", None, physics + ("blackbox",)),)
+        rate = float(data.get("rate", 100.0))  # [data]'s default rate
+        sub = (math.ceil(1.0 / rate / recipe.max_step - 1e-9)
+               if recipe.max_step is not None else None)
+        variants = (Variant("main", "cvodes", None, physics + ("blackbox",),
+                            sub if sub and sub > 1 else None),)
     models: dict[str, dict[str, Any]] = {}
     for kind in physics + ("blackbox",):
         budget = recipe.full.get(kind, {})

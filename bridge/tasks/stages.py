@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .plan import REPORT_WEIGHT, Plan, Variant
+from .plan import REPORT_WEIGHT, Plan, Variant, data_step, own_substeps
 
 # ---------------------------------------------------------------------------------- stages
 
@@ -205,13 +205,11 @@ def variant_model(plan: Plan, variant: Variant, kind: str,
     samples, so 375 epochs where the others take 200). A network with a ``max_step`` of its
     own (``[training.<network>]``) takes its sub-steps from that, not from the variant's."""
     m = dict(plan.models[kind])
-    own = m.pop("max_step", None)
-    if own is not None:
-        if variant.rate:
-            m["substeps"] = max(int(m["substeps"]),
-                                math.ceil(1.0 / variant.rate / own - 1e-9))
+    if m.get("max_step") is not None:
+        m["substeps"] = own_substeps(m, data_step(plan, variant))
     elif variant.substeps is not None:
         m["substeps"] = max(int(m["substeps"]), variant.substeps)
+    m.pop("max_step", None)
     target = plan.physics_samples
     if m.pop("equal_steps", False) and target and files is not None and kind != "blackbox":
         have = int(files["physics"]["samples"])
