@@ -495,31 +495,3 @@ def test_jobs_workers_errors_and_interruptions_reach_the_caller():
         run_models([("c", _interrupted_model, (), 1)], jobs=2, log=lines.append, progress=None)
     assert lines[-1].startswith("interrupted: the models in training save a checkpoint")
 
-
-def test_a_report_draws_its_variants_figures_in_processes(quick_runs, tmp_path):
-    """With --jobs 2 a report draws its variants' figures in two processes: the same files
-    (drafts, as the quick run's), pixel for pixel, and the same report lines as the quick run's
-    own (drawn in one)."""
-    import os
-
-    from softpinn.bridge.report.figsave import draft_figures
-    from softpinn.bridge.report.task import _all_variant_figures
-
-    result = quick_runs("task5")
-    out, own = result.out_dir, result.out_dir / "figures"
-    fig_dir = tmp_path / "figures"
-    fig_dir.mkdir()
-    with draft_figures():
-        lines = _all_variant_figures(load_spec("task5"), result.plan, result.results, fig_dir,
-                                     out, jobs=2)
-    assert list(lines) == list(result.results["variants"])  # every variant, in order
-    drawn = {p.name for p in fig_dir.iterdir()}
-    assert drawn and drawn <= {p.name for p in own.iterdir()}
-    assert not any(name.endswith(".pdf") for name in drawn)
-    for name in sorted(drawn):
-        if name.endswith(".png"):
-            assert (fig_dir / name).read_bytes() == (own / name).read_bytes(), name
-    report = result.report.read_text()
-    for vname, own_lines in lines.items():
-        text = "\n".join(own_lines).replace(os.path.relpath(fig_dir, out), "figures")
-        assert text and text in report, vname
