@@ -494,4 +494,3 @@ def test_jobs_workers_errors_and_interruptions_reach_the_caller():
     with pytest.raises(KeyboardInterrupt):
         run_models([("c", _interrupted_model, (), 1)], jobs=2, log=lines.append, progress=None)
     assert lines[-1].startswith("interrupted: the models in training save a checkpoint")
-

@@ -237,6 +237,8 @@ def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_p
     # error of the best model on exactly those pairs (make_pairs' draw with the split seed); a
     # subset at least as large as the test set is the whole test set
     from softpinn.learn.data import make_pairs, split_trajectories
+    from softpinn.learn.losses import Pairs
+    from softpinn.learn.predict import one_step_errors
 
     base = dict(epochs=2, test_trajectories=[3, 4], **F32)
     full = train(msd, blackbox_train_config(**base), tmp_path / "full")
@@ -247,9 +249,6 @@ def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_p
     all_pairs = make_pairs(msd, test_ids)
     some = make_pairs(msd, test_ids, samples=50, seed=0)
     assert np.isin(some.x0[:, 0], all_pairs.x0[:, 0]).all()
-    from softpinn.learn.losses import Pairs
-    from softpinn.learn.predict import one_step_errors
-
     pairs = Pairs(*(jnp.asarray(a, jnp.float32) for a in some[:5]), None)
     best = sub.metrics["best_test_loss"]["mean"]
     assert float(np.mean(one_step_errors(sub.model, pairs))) == pytest.approx(best, rel=1e-4)

@@ -165,8 +165,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
 def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
                          jobs: int) -> dict[str, list[str]]:
     """Every variant's figures and the report lines that show them, by variant; with ``jobs``
-    > 1 and several variants, drawn in that many processes (task 5's four variants: 82 s of
-    matplotlib in one process)."""
+    > 1 and several variants, drawn in that many processes (a finished task 5 run's report:
+    52 s in one process, 39 s in two)."""
     names = list(results["variants"])
     args = [(spec, plan, v, results["variants"][v]["models"], fig_dir, out, v == names[0])
             for v in names]

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -54,7 +53,7 @@ from .experiment_stages import (
     stage_simulate,
     stage_train,
 )
-from .plan import MIN_WIDTH, ReproduceConfig
+from .plan import MIN_WIDTH, ReproduceConfig, substeps_for
 from .stages import Stages, write_json
 
 #: The state is reset from the processed measurement this often in the long predictions [s]
@@ -151,7 +150,7 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
     data.pop("blackbox_train_trajectories", None)
     sim_rate = max(rates)
     max_step = recipe.max_step
-    substeps = {rate_name(r): (max(1, math.ceil(1.0 / r / max_step - 1e-9)) if max_step else
+    substeps = {rate_name(r): (substeps_for(1.0 / r, max_step) if max_step else
                                int(recipe.substeps)) for r in rates}
     models: dict[str, dict[str, Any]] = {}
     for kind in KINDS:

@@ -150,19 +150,28 @@ class Plan:
         return json.loads(json.dumps(dataclasses.asdict(self), default=list))
 
 
+#: [data]'s output rate [Hz] when it names none (symbolic.datatable's default)
+DEFAULT_RATE = 100.0
+
+
+def substeps_for(step: float, max_step: float) -> int:
+    """RK4 sub-steps over a data step so that none is longer than ``max_step``: at least 1."""
+    return max(1, math.ceil(step / max_step - 1e-9))
+
+
 def data_step(plan: Plan, variant: Variant) -> float:
     """The time between two samples of a variant's data [s]: its rate's, the fixed-step data's
-    output step, or the single data set's [data] rate (default 100 Hz)."""
+    output step, or the single data set's [data] rate."""
     if variant.rate:
         return 1.0 / variant.rate
     if variant.source == "rk4" and plan.fixed_step:
         return 1.0 / float(plan.fixed_step["rate"])
-    return 1.0 / float(plan.data.get("rate", 100.0))
+    return 1.0 / float(plan.data.get("rate", DEFAULT_RATE))
 
 
 def own_substeps(m: Mapping[str, Any], step: float) -> int:
     """RK4 sub-steps of a model plan ``m`` with a ``max_step`` of its own over a data step."""
-    return max(int(m.get("substeps", 1)), math.ceil(step / float(m["max_step"]) - 1e-9))
+    return max(int(m.get("substeps", 1)), substeps_for(step, float(m["max_step"])))
 
 
 def make_plan(spec, config: ReproduceConfig) -> Plan:
@@ -185,6 +194,10 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
             data["rates"] = list(recipe.quick["rates"])
         if "fixed_step_train_trajectories" in recipe.quick:
             data["fixed_step_train_trajectories"] = recipe.quick["fixed_step_train_trajectories"]
+    def more_steps(rate):  # a variant's sub-steps from [training]'s max_step (None: one)
+        sub = substeps_for(1.0 / rate, recipe.max_step) if recipe.max_step is not None else 1
+        return sub if sub > 1 else None
+
     if "rates" in data:
         variants = []
         if "fixed_step_dt" in data:
@@ -202,17 +215,11 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         black = recipe.blackbox_rates
         for r in (float(r) for r in data["rates"]):
             kinds = physics + (("blackbox",) if black is None or r in black else ())
-            sub = (math.ceil(1.0 / r / recipe.max_step - 1e-9)
-                   if recipe.max_step is not None else None)
-            variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds,
-                                    sub if sub and sub > 1 else None))
+            variants.append(Variant(f"{r:g}Hz", "cvodes", r, kinds, more_steps(r)))
         variants = tuple(variants)
     else:
-        rate = float(data.get("rate", 100.0))  # [data]'s default rate
-        sub = (math.ceil(1.0 / rate / recipe.max_step - 1e-9)
-               if recipe.max_step is not None else None)
-        variants = (Variant("main", "cvodes", None, physics + ("blackbox",),
-                            sub if sub and sub > 1 else None),)
+        rate = float(data.get("rate", DEFAULT_RATE))
+        variants = (Variant("main", "cvodes", None, physics + ("blackbox",), more_steps(rate)),)
     models: dict[str, dict[str, Any]] = {}
     for kind in physics + ("blackbox",):
         budget = recipe.full.get(kind, {})
@@ -265,7 +272,7 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         models[kind] = m
     other_dt = recipe.other_dt
     if other_dt is None:
-        rate = float(data.get("rate", max(data.get("rates", [100.0]))))
+        rate = float(data.get("rate", max(data.get("rates", [DEFAULT_RATE]))))
         other_dt = 2.0 / rate
     return Plan(
         task=task,
