@@ -27,8 +27,8 @@ INPUT_HOLDS = ("constant", "linear")
 #: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
 GROUPS = ("budget", "optimizer", "loss", "split", "ensemble", "devices")
 #: Settings that may change when a run is resumed (the others would make it another run).
-RESUMABLE = ("epochs", "patience", "target_loss", "eval_every", "checkpoint_every", "lbfgs_steps",
-             "lbfgs_chunk", "devices")
+RESUMABLE = ("epochs", "patience", "overfit", "overfit_evals", "target_loss", "eval_every",
+             "checkpoint_every", "lbfgs_steps", "lbfgs_chunk", "devices")
 
 
 def _f(default, group: str, help: str, choices: tuple[str, ...] | None = None):
@@ -79,7 +79,12 @@ class TrainConfig:
     a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly
     to evaluate every few epochs).
     ``patience``: stop a member after that many evaluations without a better test loss (None:
-    never); the saved model is the one with the best test loss. ``target_loss``: stop a member
+    never); the saved model is the one with the best test loss. ``overfit``: stop a member
+    once its test loss has stayed above ``overfit`` times its best for ``overfit_evals``
+    evaluations in a row (None: never): a network that overfits (task 5's fixed-step data: 7x
+    its best 8 epochs after it) stops long before ``patience`` would stop it, while one whose
+    test loss wanders near its best (within 1.4x in every pause of the task 5 runs that
+    improved again) trains on. ``target_loss``: stop a member
     once its test loss is at or below it, in AdamW or L-BFGS (None: never; the time to reach a
     loss, as RESULTS.md's training-speed comparisons measure it). ``eval_every``: epochs between
     test-loss evaluations. ``checkpoint_every``: epochs between checkpoints.
@@ -143,6 +148,11 @@ class TrainConfig:
     # budget, continued (may change on resume)
     patience: int | None = _f(None, "budget", "early-stopping patience in evaluations "
                               "(default: none)")
+    overfit: float | None = _f(None, "budget", "stop a member once its test loss has stayed "
+                               "above X times its best for --overfit-evals evaluations in a "
+                               "row (overfitting; default: none)")
+    overfit_evals: int = _f(3, "budget", "evaluations in a row above --overfit times the best "
+                            "test loss that stop a member")
     target_loss: float | None = _f(None, "budget", "stop a member once its test loss is at or "
                                    "below X, in AdamW or L-BFGS (default: none)")
     eval_every: int = _f(1, "budget", "evaluate the test loss every N epochs")
@@ -167,6 +177,7 @@ class TrainConfig:
             "eval_every",
             "checkpoint_every",
             "rollout_steps",
+            "overfit_evals",
         )
         for name in pos_int + ("lbfgs_chunk",):
             v = getattr(self, name)
@@ -217,6 +228,11 @@ class TrainConfig:
                 isinstance(self.patience, bool) or not isinstance(self.patience, int)
                 or self.patience < 1):
             raise UserError(f"patience: expected an integer >= 1, got {self.patience!r}")
+        if self.overfit is not None and (
+                isinstance(self.overfit, bool) or not isinstance(self.overfit, int | float)
+                or not math.isfinite(self.overfit) or self.overfit <= 1):
+            raise UserError(f"overfit: expected a number > 1 (times the best test loss), got "
+                            f"{self.overfit!r}")
         if self.target_loss is not None and (
                 isinstance(self.target_loss, bool)
                 or not isinstance(self.target_loss, int | float)

@@ -100,6 +100,7 @@ class MemberGroup:
         self.best_loss = np.full(self.K, np.inf)
         self.best_epoch = np.zeros(self.K, dtype=int)
         self.bad = np.zeros(self.K, dtype=int)
+        self.over = np.zeros(self.K, dtype=int)  # evaluations in a row above overfit x best
         self.active = np.ones(self.K, dtype=bool)
         self.stopped = ["running"] * self.K
         self.history: list[list[dict]] = [[] for _ in range(self.K)]
@@ -119,6 +120,7 @@ class MemberGroup:
             "best_loss": [float(x) for x in self.best_loss],
             "best_epoch": self.best_epoch.tolist(),
             "bad": self.bad.tolist(),
+            "over": self.over.tolist(),
             "active": self.active.tolist(),
             "stopped": self.stopped,
             "history": self.history,
@@ -142,6 +144,7 @@ class MemberGroup:
         self.best_loss = np.array(header["best_loss"], dtype=float)
         self.best_epoch = np.array(header["best_epoch"], dtype=int)
         self.bad = np.array(header["bad"], dtype=int)
+        self.over = np.array(header.get("over", [0] * self.K), dtype=int)
         self.active = np.array(header["active"], dtype=bool)
         self.stopped = list(header["stopped"])
         self.history = header["history"]
@@ -203,6 +206,16 @@ class MemberGroup:
                     out = self.active & (self.bad >= cfg.patience)
                     for k in np.flatnonzero(out):
                         self.stopped[k] = f"early stop at epoch {epoch} (patience {cfg.patience})"
+                    self.active = self.active & ~out
+                if cfg.overfit is not None:
+                    above = self.active & (test_loss > cfg.overfit * self.best_loss)
+                    self.over = np.where(above, self.over + 1, 0)
+                    out = self.active & (self.over >= cfg.overfit_evals)
+                    for k in np.flatnonzero(out):
+                        self.stopped[k] = (
+                            f"early stop at epoch {epoch} (overfit: test loss above "
+                            f"{cfg.overfit:g}x its best, {self.best_loss[k]:.4g} at epoch "
+                            f"{self.best_epoch[k]}, for {cfg.overfit_evals} evaluations)")
                     self.active = self.active & ~out
             if cfg.target_loss is not None:
                 out = self.active & (test_loss <= cfg.target_loss)

@@ -398,6 +398,8 @@ class ProgramCache:
         "split_seed",
         "samples",
         "patience",
+        "overfit",
+        "overfit_evals",
         "target_loss",
         "eval_every",
         "checkpoint_every",

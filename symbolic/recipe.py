@@ -59,6 +59,7 @@ BUDGET_KEYS: dict[str, tuple[str, tuple | None]] = {
     "lr": ("float", None),
     "equal_steps": ("bool", None),
     "patience": ("int", None),
+    "overfit": ("ratio", None),
     "test_samples": ("int", None),
 }
 
@@ -211,6 +212,11 @@ def _value(value, kind: str, where: str, n: int):
         x = _number(value, where)
         if not x > 0:
             raise RecipeError(where, f"must be positive, got {value}")
+        return x
+    if kind == "ratio":  # a factor over a best value
+        x = _number(value, where)
+        if not x > 1:
+            raise RecipeError(where, f"must be greater than 1, got {value}")
         return x
     if kind == "bool":
         if not isinstance(value, bool):

@@ -311,6 +311,8 @@ def test_plans_follow_the_paper():
     assert "patience" not in make_plan(load_spec("task5"), ReproduceConfig(
         "task5", quick=True)).models["blackbox"]
     assert variant_model(t5, t5.variants[0], "blackbox")["patience"] == 10
+    assert {(t, k): m["overfit"] for t in TASKS for k, m in full[t].models.items()
+            if "overfit" in m} == {("task5", "lagrangian"): 2.0, ("task5", "blackbox"): 2.0}
     # the test loss on a subset of task5's large held-out sets, in full runs only
     assert {(t, k): m["test_samples"] for t in TASKS for k, m in full[t].models.items()
             if "test_samples" in m} == {("task5", "lagrangian"): 45000,

@@ -67,6 +67,8 @@ def _spec_with(tmp_path, training: str, base: str = "task1"):
          "positive"),
         ("[training]\n[training.blackbox]\nmax_step = \"10 ms\"\n",
          "training.blackbox.max_step", "expected a number"),
+        ("[training]\n[training.full.blackbox]\noverfit = 1.0\n",
+         "training.full.blackbox.overfit", "greater than 1"),
     ],
 )
 def test_bad_training_table_is_refused_naming_file_and_field(tmp_path, training, field,

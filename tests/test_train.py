@@ -232,6 +232,34 @@ def test_early_stopping_keeps_best(msd, tmp_path):
     assert hist[-1]["epoch"] - m["best_epoch"] == 2
 
 
+def test_overfit_stop_ends_a_member_whose_test_loss_stays_above_its_best(msd, tmp_path):
+    # the early-stopping run's settings with no patience: a ratio just above 1 stops the member
+    # after 2 evaluations in a row worse than its best; the best model is the one kept
+    cfg = blackbox_train_config(epochs=12, lr=0.3, overfit=1 + 1e-9, overfit_evals=2, **F32)
+    res = train(msd, cfg, tmp_path / "of")
+    m, hist = res.members[0].metrics, res.members[0].history
+    assert m["stopped"].startswith(f"early stop at epoch {hist[-1]['epoch']} (overfit: test loss "
+                                   "above 1x its best") and m["epochs_run"] < 12
+    assert m["best_test_loss"] == min(r["test_loss"] for r in hist)
+    assert hist[-1]["epoch"] - m["best_epoch"] == 2
+    assert all(r["test_loss"] > m["best_test_loss"] for r in hist[-2:])
+    header = ckpt.read_header(tmp_path / "of" / "checkpoint.eqx")
+    assert header["over"] == [2]
+    # a larger ratio than the run ever saw stops nothing: every epoch runs
+    calm = train(msd, blackbox_train_config(epochs=12, lr=0.3, overfit=1e6, **F32),
+                 tmp_path / "calm")
+    assert calm.members[0].metrics["stopped"] == "completed 12 epochs"
+
+
+@pytest.mark.parametrize("bad", [1.0, 0.5, -2.0, float("inf"), True, "2"])
+def test_overfit_refuses_a_ratio_not_above_one(bad):
+    with pytest.raises(UserError, match=r"^overfit: expected a number > 1 \(times the best test "
+                                        r"loss\), got"):
+        blackbox_train_config(overfit=bad)
+    with pytest.raises(UserError, match=r"^overfit_evals: expected an integer >= 1, got 0"):
+        blackbox_train_config(overfit=2.0, overfit_evals=0)
+
+
 def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_path):
     # the test loss on a subset: the metrics count it, and the best test loss is the mean eq. 8
     # error of the best model on exactly those pairs (make_pairs' draw with the split seed); a

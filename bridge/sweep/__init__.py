@@ -345,7 +345,8 @@ def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> di
         if last.get("status") == "diverged" or stopped.startswith("diverged"):
             status = "diverged"
         elif stopped.startswith("early stop"):
-            status, stopped_early = "early stop (patience)", True
+            why = "overfit" if "(overfit" in stopped else "patience"
+            status, stopped_early = f"early stop ({why})", True
         elif stopped.startswith("reached"):
             status = "reached the target loss"
         elif stopped == "running":

@@ -262,6 +262,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
         m["equal_steps"] = bool(budget.get("equal_steps", False)) and not quick
         if "patience" in budget and not quick:  # evaluations without a better test loss
             m["patience"] = int(budget["patience"])
+        if "overfit" in budget and not quick:  # stop once the test loss stays above X x best
+            m["overfit"] = float(budget["overfit"])
         if "test_samples" in budget and not quick:  # held-out pairs the test loss is taken on
             m["test_samples"] = int(budget["test_samples"])
         if config.epochs is not None:

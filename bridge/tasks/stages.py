@@ -251,6 +251,7 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
         momenta=str(m.get("momenta", "auto")),
         eval_every=max(1, int(m["epochs"]) // 50),
         patience=m.get("patience"),
+        overfit=m.get("overfit"),
         test_samples=m.get("test_samples"),
         checkpoint_every=max(1, int(m["epochs"]) // 10),
     )
