@@ -101,6 +101,33 @@ def test_reset_reduces_the_error_of_a_wrong_model(free):
     assert np.abs(ro["q_pred"][19] - ro["q_true"][19]).max() > 1e-3
 
 
+def test_chunked_rollouts_and_errors_equal_one_call(free, monkeypatch):
+    # rollouts longer than a chunk continue from the chunk before (resets across a chunk's edge
+    # included) and pairs are evaluated a chunk at a time: the same numbers as in one call
+    import sys
+
+    predict_mod = sys.modules[evaluate.__module__]  # learn.predict (the name is a function)
+    wrong = ExactMSD(CFG, k_scale=1.2)
+    one = evaluate(wrong, free, [0, 1, 2], horizon=4.0, reset_every=0.7)
+    other = rollouts(wrong, trajectories(free, [0, 1]), horizon=3.0, dt=0.03)
+    monkeypatch.setattr(predict_mod, "ROLLOUT_CHUNK", 7)
+    monkeypatch.setattr(predict_mod, "PAIR_CHUNK", 32)
+    calls = []
+    real = predict_mod._batched_rollout
+    monkeypatch.setattr(predict_mod, "_batched_rollout",
+                        lambda *a, **k: calls.append(a[2].shape) or real(*a, **k))
+    chunked = evaluate(wrong, free, [0, 1, 2], horizon=4.0, reset_every=0.7)
+    assert calls and {c[1] for c in calls} == {8}  # 7 steps and the start, every call
+    assert len(calls) == -(-(chunked.rollouts[0]["t"].size - 1) // 7)
+    for a, b in zip(one.rollouts, chunked.rollouts, strict=True):
+        np.testing.assert_array_equal(a["q_pred"], b["q_pred"])
+        np.testing.assert_array_equal(a["resets"], b["resets"])
+    assert chunked.one_step_error == one.one_step_error and one.one_step_error["pairs"] > 32
+    again = rollouts(wrong, trajectories(free, [0, 1]), horizon=3.0, dt=0.03)
+    for a, b in zip(other, again, strict=True):
+        np.testing.assert_array_equal(a["q_pred"], b["q_pred"])
+
+
 def test_reset_mask():
     t = np.arange(0.0, 1.01, 0.1)
     np.testing.assert_array_equal(np.flatnonzero(_reset_mask(t, 0.0, 0.25)), [3, 5, 8, 10])
