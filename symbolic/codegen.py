@@ -301,6 +301,7 @@ def generate(
     timings: Mapping[str, float] | None = None,
     extra: Mapping | None = None,
     cache: str | os.PathLike | None | bool = None,
+    files: Mapping[str, str] | None = None,
 ) -> dict:
     """Write C source, shared library, CasADi serialized functions and ``summary.json``.
 
@@ -310,7 +311,9 @@ def generate(
     caller, e.g. derive and function creation, plus C generation and compilation), the compiler
     and flags. Returns the summary. The library is also installed in the cache (``cache``: a
     directory, None for the default, False for no), so that :func:`compile_functions` of the same
-    functions finds it; a cache that cannot be written is skipped with a warning.
+    functions finds it; a cache that cannot be written is skipped with a warning. ``files``:
+    further text files to write beside them (``{name: text}``, e.g. the functions as replayable
+    programs), listed in the summary's ``files``.
 
     Everything is built in a temporary sibling folder (``.<name>.partial-<pid>@<host>``) and
     appears at ``out_dir`` only when complete: a new folder is renamed into place; into an
@@ -335,17 +338,22 @@ def generate(
         raise outputs.cannot_write("output folder", out, exc) from None
     try:
         summary = _generate_into(work, out, fns, compiler, tuple(flags), timeout, timings, extra,
-                                 cache)
+                                 cache, files or {})
         _install_folder(work, out, summary)
     finally:
         outputs.remove_path(work)
     return summary
 
 
-def _generate_into(work, out, fns, compiler, flags, timeout, timings, extra, cache) -> dict:
+def _generate_into(work, out, fns, compiler, flags, timeout, timings, extra, cache,
+                   files) -> dict:
     times = dict(timings or {})
     for key, fn in fns.items():
         fn.save(str(work / f"{key}.casadi"))
+    for name, text in files.items():
+        if not name or "/" in name or os.sep in name or name in (".", ".."):
+            raise UserError(f"files: {name!r} is not a plain file name")
+        (work / name).write_text(text, "utf-8")
     t0 = time.perf_counter()
     source = write_c(fns, work, "softpinn_eom")
     times["generate_c"] = time.perf_counter() - t0
@@ -384,6 +392,8 @@ def _generate_into(work, out, fns, compiler, flags, timeout, timings, extra, cac
         },
         "timings_s": times,
     }
+    if files:
+        summary["files"] = sorted(files)
     if extra:
         summary.update(extra)
     (work / "summary.json").write_text(outputs.dumps(summary, what="summary.json", indent=1))
@@ -398,6 +408,7 @@ def summary_files(summary: Mapping) -> set[str]:
     for info in (summary.get("functions") or {}).values():
         if isinstance(info, Mapping) and info.get("file"):
             names.add(str(info["file"]))
+    names.update(str(n) for n in summary.get("files") or () if isinstance(n, str))
     return {n for n in names if n and "/" not in n and os.sep not in n and n not in (".", "..")}
 
 

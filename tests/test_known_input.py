@@ -172,3 +172,47 @@ def load_run_data(path):
     from softpinn.learn.data import load_dataset
 
     return load_dataset(path)
+
+
+def test_derive_programs_give_a_known_a_without_casadi(tmp_path, capsys):
+    """`derive --programs` writes every function as a replayable program (the exact model where
+    CasADi is not installed: equal to CasADi's), and `train --known-input A.program.json` fixes
+    A(q) from one (task 3's A on mass-spring data of its n = 2, m = 1: the option's path, not
+    a physical pairing); a program of another model is refused in one line."""
+    from softpinn.bridge.cli import main
+    from softpinn.learn.program import ProgramFunction
+    from softpinn.symbolic.model import TrueModel
+
+    jax.config.update("jax_enable_x64", True)
+    eom = tmp_path / "eom"
+    assert main(["derive", "task3", "--out", str(eom), "--programs", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert "forward.program.json" in summary["files"] and "programs" in summary["timings_s"]
+    assert {p.name for p in eom.iterdir()} >= set(summary["files"])
+    true = TrueModel("task3")
+    q, qd, u = np.array([0.3, 0.05]), np.array([0.1, 0.4]), np.array([0.7])
+    fwd = ProgramFunction(json.loads((eom / "forward.program.json").read_text()))
+    np.testing.assert_allclose(np.asarray(fwd(q, qd, u)[0]).ravel(),
+                               np.asarray(true.functions["forward"](q, qd, u)).ravel(),
+                               rtol=1e-12, atol=1e-12)
+    # derive again without --programs: the earlier programs are removed with its summary
+    assert main(["derive", "task3", "--out", str(eom), "--json"]) == 0
+    capsys.readouterr()
+    assert not list(eom.glob("*.program.json"))
+    assert main(["derive", "task3", "--out", str(eom), "--programs"]) == 0
+    capsys.readouterr()
+
+    data = make_dataset(tmp_path / "msd.npz", trajectories=2, duration=1.0)
+    base = ["train", str(data), "--model", "lagrangian", "--epochs", "1", "--quiet"]
+    assert main([*base, "--out", str(tmp_path / "run"), "--known-input",
+                 str(eom / "A.program.json")]) == 0, capsys.readouterr().err
+    stored = json.loads((tmp_path / "run" / "config.json").read_text())["train"]["model"]
+    assert stored["input_form"] == "known"
+    assert stored["known_input"] == spec_known_input("task3")[0]  # the same A(q) as by name
+    wrong = tmp_path / "A4.program.json"
+    wrong.write_text(json.dumps(json.loads(spec_known_input("task4")[0])["program"]))
+    assert main([*base, "--out", str(tmp_path / "r4"), "--known-input", str(wrong)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--known-input: {wrong}: known input program: expected one " \
+        "input q of 2 values, got [3]" in err[0], err
+    assert not (tmp_path / "r4").exists()

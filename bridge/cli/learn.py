@@ -102,8 +102,9 @@ def add_network_flags(parser, title: str = "network") -> None:
     net.add_argument(
         "--known-input", default=None, metavar="MODEL|FILE",
         help="fix A(q), not learned (physics models): the exact A(q) of a symbolic model (a "
-        "preset name such as task4, or a spec .toml), or a constant n x m matrix (FILE.npy, or "
-        "FILE.json holding a list of rows)",
+        "preset name such as task4, or a spec .toml), a constant n x m matrix (FILE.npy, or "
+        "FILE.json holding a list of rows), or A(q) as a program (A.program.json of 'softpinn "
+        "derive --programs', for a machine without CasADi)",
     )
     net.add_argument("--eps", type=float, default=model_defaults["eps"],
                      help="Cholesky diagonal shift of M")
@@ -288,7 +289,7 @@ def known_input(source: str, n: int, m: int) -> str:
     from pathlib import Path
 
     from softpinn.learn.errors import UserError
-    from softpinn.learn.known import known_input_text
+    from softpinn.learn.known import PROGRAM_FORMAT, known_input_text
 
     path = Path(source)
     if path.suffix in (".npy", ".json"):
@@ -301,6 +302,8 @@ def known_input(source: str, n: int, m: int) -> str:
                 value = np.load(path, allow_pickle=False)
             else:
                 value = json.loads(path.read_text("utf-8"))
+                if isinstance(value, dict) and value.get("format") == PROGRAM_FORMAT:
+                    return _known_program(source, value, n, m)
             a = np.asarray(value, dtype=np.float64)
         except (OSError, ValueError, TypeError) as err:
             raise UserError(f"--known-input: {source} is not a numeric matrix "
@@ -323,6 +326,20 @@ def known_input(source: str, n: int, m: int) -> str:
     if (sn, sm) != (n, m):
         raise UserError(f"--known-input: model {source} has n = {sn} coordinates and m = {sm} "
                         f"inputs; the data have n = {n}, m = {m}")
+    return text
+
+
+def _known_program(source: str, data: dict, n: int, m: int) -> str:
+    """``--known-input A.program.json``: A(q) as a replayable program (``softpinn derive
+    --programs``), checked to be a function of the data's n coordinates with an n x m output."""
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.known import known_input_text, parse_known_input
+
+    text = known_input_text(data)
+    try:
+        parse_known_input(text, n, m)
+    except UserError as err:
+        raise UserError(f"--known-input: {source}: {err}") from None
     return text
 
 

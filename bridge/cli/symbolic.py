@@ -13,6 +13,7 @@ The commands only map flags onto :mod:`symbolic` functions:
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -89,6 +90,11 @@ def register(subparsers) -> None:
         help="write into a non-empty directory that is not an earlier derive output",
     )
     p.add_argument("--json", action="store_true", help="print summary.json to stdout")
+    p.add_argument(
+        "--programs", action="store_true",
+        help="also write every function as <name>.program.json, its instruction list that "
+        "softpinn.learn.program replays in JAX where CasADi is not installed (a GPU node: "
+        "train --known-input DIR/A.program.json there)")
     p.add_argument(
         "--cache",
         metavar="DIR",
@@ -280,14 +286,23 @@ def cmd_derive(args) -> int:
     t0 = time.perf_counter()
     fns = functions_of(model)  # the model derived above, not a second derivation
     t_functions = time.perf_counter() - t0
+    programs, timings = {}, {"derive": t_derive, "functions": t_functions}
+    if args.programs:
+        from softpinn.bridge.exact.serialize import function_data
+
+        t0 = time.perf_counter()
+        programs = {f"{key}.program.json": json.dumps(function_data(fn), allow_nan=False)
+                    for key, fn in fns.items()}
+        timings["programs"] = time.perf_counter() - t0
     with warnings_as_lines():
         summary = generate(
             fns,
             out,
             compiler=args.compiler,
             timeout=args.timeout,
-            timings={"derive": t_derive, "functions": t_functions},
+            timings=timings,
             cache=args.cache,
+            files=programs,
             extra={"model": spec.name, "spec": spec.to_dict(), "n": spec.n, "m": spec.m},
         )
     if args.json:
@@ -297,7 +312,8 @@ def cmd_derive(args) -> int:
     print(f"{spec.name}: wrote {summary['directory']}")
     print(
         f"  C source {summary['source']} ({summary['source_bytes'] / 1e6:.2f} MB), library "
-        f"{summary['library']}, {len(summary['functions'])} CasADi files, summary.json"
+        f"{summary['library']}, {len(summary['functions'])} CasADi files"
+        + (f", {len(programs)} programs" if programs else "") + ", summary.json"
     )
     print("  timings: " + ", ".join(f"{k} {v:.2f} s" for k, v in tm.items()))
     print(
