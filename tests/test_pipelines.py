@@ -150,6 +150,15 @@ def test_second_call_skips_finished_stages(quick_runs):
     for kind in ("lagrangian", "blackbox"):
         a, b = (r.results["variants"]["main"]["models"][kind] for r in (first, again))
         assert a == b, kind
+    # the figures were a stage of the workers' (drawn once the models were done); one that
+    # is gone is drawn again, with the same report
+    assert (first.out_dir / "draw" / "main" / "done.json") in done
+    loss = first.out_dir / "figures" / "loss_main.png"
+    loss.unlink()
+    lines = []
+    reproduce(dataclasses.replace(first.config, jobs=1), first.out_dir, log=lines.append)
+    assert loss.is_file() and "[draw/main] ..." in lines
+    assert sum("skipped" in line for line in lines) == len(done) - 1
 
 
 def test_a_moved_output_folder_keeps_its_finished_stages(quick_runs, tmp_path, monkeypatch):
@@ -481,6 +490,29 @@ def _failing_model():
     from softpinn.bridge.errors import UserError
 
     raise UserError("task.toml: field 'x': expected a number")
+
+
+def _logged_model(path: str, name: str, delay: float) -> list[str]:
+    import time
+
+    time.sleep(delay)
+    with open(path, "a") as f:
+        f.write(name + "\n")
+    return [name]
+
+
+def test_jobs_after_work_waits_for_its_models(tmp_path):
+    """Work ``after`` the models (a data set's figures) starts once the models it needs are
+    done (one not in the run counts as done), on the next free worker: here a free worker
+    waits for the slow model instead of taking it at once."""
+    from softpinn.bridge.tasks.parallel import run_models
+
+    order = tmp_path / "order.txt"
+    ran = run_models([("a", _logged_model, (str(order), "a", 1.0), 1)], jobs=2,
+                     log=lambda _: None, progress=None,
+                     after=[("draw", ["a", "gone"], _logged_model, (str(order), "draw", 0.0)),
+                            ("free", ["gone"], _logged_model, (str(order), "free", 0.0))])
+    assert order.read_text().split() == ["free", "a", "draw"] and ran == {"a", "draw", "free"}
 
 
 def test_jobs_workers_errors_and_interruptions_reach_the_caller():

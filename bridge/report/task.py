@@ -80,9 +80,12 @@ def _task_argument(spec, plan) -> str:
 
 
 def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
-                      machine: str, jobs: int = 1) -> Path:
+                      machine: str, jobs: int = 1,
+                      figures: dict[str, list[str]] | None = None) -> Path:
     """Write ``out/report.md`` (and the figures it shows) for one task run; ``machine`` names
-    the computer it ran on (the caller's description), ``jobs`` how many models ran at a time."""
+    the computer it ran on (the caller's description), ``jobs`` how many models ran at a time.
+    ``figures``: each variant's report lines of its figures, drawn already (the pipeline's
+    ``draw`` stages); None draws them here, in ``jobs`` processes."""
     wall = WallTime(seconds)
     out = Path(out)
     fig_dir = out / "figures"
@@ -106,7 +109,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         "",
     ]
     lines[2:2] = verdict(plan, results)
-    figures = _all_variant_figures(spec, plan, results, fig_dir, out, jobs)
+    if figures is None:
+        figures = _all_variant_figures(spec, plan, results, fig_dir, out, jobs)
     physics_kinds = [k for k in plan.models if k != "blackbox"]
     in_paper = paper_task(plan.task)  # a spec of the user's has no row in Table III
     for vname, vres in results["variants"].items():

@@ -110,16 +110,22 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
 
 
 def run_models(work: list, *, jobs: int, log: Callable[[str], None],
-               progress: Callable[[dict], None] | None) -> set[str]:
+               progress: Callable[[dict], None] | None, after: list | None = None) -> set[str]:
     """Run ``work`` (``[(key, function, args, epochs)]``: a module-level ``function(*args)``
     runs one model's chain and returns the names of the stages it ran), ``jobs`` at a time;
     returns the names of every stage the workers ran. ``progress`` gets ``{"phase": "models",
     "models": {key: epochs}}`` first, then each worker's training events with ``"model": key``
-    added, and ``{"phase": "model-done", "model": key}`` when a model's chain has finished."""
-    if not work:
+    added, and ``{"phase": "model-done", "model": key}`` when a model's chain has finished.
+    ``after``: ``[(key, needs, function, args)]``, work that waits for the models ``needs``
+    (keys of ``work``; those not in it count as finished) and then takes the next free
+    worker, e.g. a data set's report figures once its models are done (drawn while the other
+    models train)."""
+    after = list(after or [])
+    if not work and not after:
         return set()
-    n = min(jobs, len(work))
-    log(f"[models] {len(work)} model(s) to train and analyse, {n} at a time")
+    n = min(jobs, len(work) + len(after))
+    log(f"[models] {len(work)} model(s) to train and analyse"
+        + (f", {len(after)} data set(s)' figures to draw" if after else "") + f", {n} at a time")
     if progress is not None:
         progress({"phase": "models", "models": {key: epochs for key, _, _, epochs in work}})
     ctx = multiprocessing.get_context("spawn")
@@ -138,8 +144,17 @@ def run_models(work: list, *, jobs: int, log: Callable[[str], None],
                 progress({**payload, "model": key})
 
     ran: set[str] = set()
+    models = {key for key, _, _, _ in work}
     pending = {key: pool.apply_async(fn, args) for key, fn, args, _ in work}
+
+    def release() -> None:  # the waiting work whose models have all finished
+        for item in [a for a in after if not (set(a[1]) & models) - done]:
+            after.remove(item)
+            pending[item[0]] = pool.apply_async(item[2], item[3])
+
+    done: set[str] = set()
     try:
+        release()
         while pending:
             drain()
             for key in [k for k, r in pending.items() if r.ready()]:
@@ -147,8 +162,10 @@ def run_models(work: list, *, jobs: int, log: Callable[[str], None],
                     ran.update(pending.pop(key).get())  # a worker's error is raised here
                 except WorkerInterrupted:  # Ctrl-C reached the worker first
                     raise KeyboardInterrupt from None
-                if progress is not None:
+                done.add(key)
+                if progress is not None and key in models:
                     progress({"phase": "model-done", "model": key})
+                release()
             time.sleep(0.1)
         drain()
         pool.close()

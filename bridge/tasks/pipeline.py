@@ -12,7 +12,8 @@ One call runs the whole study of a task (Section III-B, Section IV, Appendix B):
 4. **analyze**: learned against true M, M^-1, D, G, A at the paper's table q and at q sampled
    in the data's range, with the transforms of :mod:`bridge.transforms`;
 5. **report**: ``report.md`` with Table III's row for the task beside ours, the matrix
-   summaries and the figures.
+   summaries and the figures (each data set's figures a stage of their own, ``draw/<variant>``:
+   with ``--jobs`` drawn by a free worker as soon as that data set's models are done).
 
 Every stage writes its results under ``OUT/<stage>/`` and a ``done.json`` holding the settings
 that made them; a second call with the same settings skips finished stages, so an interrupted
@@ -118,7 +119,9 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     results: dict[str, Any] = {"data": data, "variants": {}}
     if config.jobs > 1:  # every model's stages in worker processes, then gathered below
         work = _unfinished_models(config, out, plan, data, spec)
-        by_workers = parallel.run_models(work, jobs=config.jobs, log=log, progress=progress)
+        after = _unfinished_figures(config, out, plan, data, spec, {w[0] for w in work})
+        by_workers = parallel.run_models(work, jobs=config.jobs, log=log, progress=progress,
+                                         after=after)
         stages.ran |= by_workers
         stages.quiet |= by_workers
     elif not plan.quick:
@@ -144,8 +147,10 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     from ..report import write_task_report
 
     t_report = time.perf_counter()
+    figures = {v.name: figure_stage(spec, plan, stages, v.name, results["variants"][v.name][
+        "models"], i == 0) for i, v in enumerate(plan.variants)}
     report = write_task_report(spec, plan, results, out, seconds=seconds,
-                               machine=machine_description(), jobs=config.jobs)
+                               machine=machine_description(), jobs=config.jobs, figures=figures)
     seconds += time.perf_counter() - t_report  # the report's figures are part of the run
     write_json(out / "results.json", {
         "task": plan.task, "quick": plan.quick, "seconds": seconds, "jobs": config.jobs,
@@ -193,6 +198,69 @@ def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dic
             lambda d: stage_analyze(spec, plan, tr, files, d),
         )
     return entry, credit
+
+
+def figure_stage(spec, plan: Plan, stages: Stages, vname: str, models: dict,
+                 first: bool) -> list[str]:
+    """Stage ``draw/<variant>``: the report's figures of one data set (loss curves, rollouts,
+    the arm; the first data set's animation too) from its models' results; returns the report
+    lines that show them. Drawn again when a figure it drew is gone."""
+    import re
+
+    from ..report.figsave import is_draft
+    from ..report.task_figures import _variant_figures
+
+    name = f"draw/{vname}"
+    settings = {"models": models, "draft": is_draft(), "animate": first}
+    stored = stages.finished(name, settings)
+    if stored is not None:
+        lines = stored["result"]["lines"]
+        drawn = re.findall(r"\]\(([^)\s]+)\)", "\n".join(lines))
+        if not all((stages.out / p).is_file() for p in drawn):
+            (stages.out / name / "done.json").unlink()
+    fig_dir = stages.out / "figures"
+    return stages.run(name, settings, lambda d: {"lines": _variant_figures(
+        spec, plan, vname, models, fig_dir, stages.out, first)})["lines"]
+
+
+def _unfinished_figures(config: ReproduceConfig, out: Path, plan: Plan, data: dict, spec,
+                        training: set[str]) -> list:
+    """The ``after`` work of :func:`.parallel.run_models`: ``[(key, needs, function, args)]``
+    of every data set whose figures are not drawn yet (needs: its models still to run)."""
+    settings = _data_settings(plan, spec)
+    work = []
+    for i, variant in enumerate(plan.variants):
+        needs = [f"{variant.name}/{kind}" for kind in variant.models]
+        if not set(needs) & training:  # its models are finished: are its figures drawn?
+            probe = parallel.Probe(out, lambda _: None)
+            models = {k: model_stages(spec, plan, probe, variant, k, data, settings, None)[0]
+                      for k in variant.models}
+            try:
+                figure_stage(spec, plan, probe, variant.name, models, i == 0)
+                continue
+            except parallel.NotDone:
+                pass
+        work.append((f"draw/{variant.name}", needs, _figures_worker,
+                     (config, str(out), variant.name)))
+    return work
+
+
+def _figures_worker(config: ReproduceConfig, out: str, variant_name: str) -> list[str]:
+    """One data set's report figures in a ``--jobs`` worker, once its models are done."""
+    spec = task_spec(config.task)
+    plan = make_plan(spec, config)
+    settings = _data_settings(plan, spec)
+    probe = parallel.Probe(Path(out), lambda _: None)
+    data = probe.run("data", settings, None)
+    first = plan.variants[0].name == variant_name
+    variant = next(v for v in plan.variants if v.name == variant_name)
+
+    def body(stages, progress):
+        models = {k: model_stages(spec, plan, probe, variant, k, data, settings, None)[0]
+                  for k in variant.models}
+        figure_stage(spec, plan, stages, variant_name, models, first)
+
+    return parallel.run_in_worker(config, f"draw/{variant_name}", out, body)
 
 
 def _data_settings(plan: Plan, spec) -> dict:
