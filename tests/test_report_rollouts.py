@@ -149,3 +149,22 @@ def test_a_quick_run_draws_drafts_and_a_full_run_print_copies(tmp_path):
         with Image.open(p) as image:
             dpi[p] = image.info["dpi"][0]
     assert dpi[draft] == pytest.approx(DRAFT_DPI, abs=1) and dpi[full] == pytest.approx(DPI, abs=1)
+
+
+def test_a_figure_larger_than_a_page_is_written_within_the_pixel_cap(tmp_path):
+    """300 dpi for a figure of a page's size; one too large for it (task 5's 36 panels of
+    P(q)) at the resolution that fills MAX_PIXELS, never below a draft's."""
+    from matplotlib.figure import Figure
+    from PIL import Image
+
+    from softpinn.bridge.report.figsave import DPI, DRAFT_DPI, MAX_PIXELS, figure_dpi
+
+    assert figure_dpi(300, Figure(figsize=(7.0, 5.0))) == DPI
+    big = Figure(figsize=(16.6, 13.9))
+    dpi = figure_dpi(300, big)
+    assert DRAFT_DPI < dpi < DPI and 16.6 * 13.9 * dpi**2 <= MAX_PIXELS
+    assert figure_dpi(300, Figure(figsize=(100.0, 100.0))) == DRAFT_DPI
+    big.add_subplot().plot([0, 1], [0, 1])
+    big.savefig(tmp_path / "big.png", dpi=dpi)
+    with Image.open(tmp_path / "big.png") as image:
+        assert image.size[0] * image.size[1] <= MAX_PIXELS

@@ -272,7 +272,7 @@ def _figure(steps: dict[str, Any], ttl: dict[str, Any], path: Path) -> None:
     ax1.set_ylabel("test loss (eq. 8)")
     ax1.set_title(f"{TASK}: time to a test loss")
     ax1.legend(fontsize=7)
-    fig.savefig(path, dpi=figure_dpi(200))
+    fig.savefig(path, dpi=figure_dpi(200, fig))
     plt.close(fig)
 
 

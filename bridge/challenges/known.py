@@ -177,7 +177,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel("direct relative residual [%] (no transform)")
         ax.set_title(f"{task}: learned vs true over the training data's q")
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=figure_dpi(300))
+    fig.savefig(path, dpi=figure_dpi(300, fig))
     plt.close(fig)
 
 

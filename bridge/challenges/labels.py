@@ -313,7 +313,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel(f"prediction error over {r['runs']['none']['horizon_s']:g} s")
         ax.set_title(f"{task}: prediction error (test trajectories)")
         ax.legend(fontsize=7)
-    fig.savefig(path, dpi=figure_dpi(300))
+    fig.savefig(path, dpi=figure_dpi(300, fig))
     plt.close(fig)
 
 

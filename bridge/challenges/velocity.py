@@ -302,7 +302,7 @@ def _figure(results: dict[str, Any], path: Path) -> None:
         ax.set_ylabel("direct relative residual [%]")
         ax.set_title(f"{task}, {variant}: learned vs true (no transform)")
         ax.legend(fontsize=6)
-    fig.savefig(path, dpi=figure_dpi(300))
+    fig.savefig(path, dpi=figure_dpi(300, fig))
     plt.close(fig)
 
 

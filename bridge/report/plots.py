@@ -30,7 +30,7 @@ def _save(fig: Figure, path: str | Path | None) -> Figure:
         p = Path(path)
         p.parent.mkdir(parents=True, exist_ok=True)
         tmp = p.with_name(p.stem + ".tmp" + p.suffix)
-        fig.savefig(tmp, dpi=figure_dpi(300))  # readable in print (a draft on quick runs)
+        fig.savefig(tmp, dpi=figure_dpi(300, fig))  # readable in print (a draft on quick runs)
         tmp.replace(p)
     return fig
 
