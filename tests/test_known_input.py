@@ -216,3 +216,9 @@ def test_derive_programs_give_a_known_a_without_casadi(tmp_path, capsys):
     assert len(err) == 1 and f"--known-input: {wrong}: known input program: expected one " \
         "input q of 2 values, got [3]" in err[0], err
     assert not (tmp_path / "r4").exists()
+    # another function of q with an n x m output (M of a model with n = m) is not taken for A
+    square = tmp_path / "M.program.json"
+    square.write_text(json.dumps(json.loads((eom / "D.program.json").read_text())))
+    assert main([*base, "--out", str(tmp_path / "rd"), "--known-input", str(square)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is the program of D(q), not of the input matrix A(q)" in err[0]

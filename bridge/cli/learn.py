@@ -302,13 +302,14 @@ def known_input(source: str, n: int, m: int) -> str:
                 value = np.load(path, allow_pickle=False)
             else:
                 value = json.loads(path.read_text("utf-8"))
-                if isinstance(value, dict) and value.get("format") == PROGRAM_FORMAT:
-                    return _known_program(source, value, n, m)
-            a = np.asarray(value, dtype=np.float64)
+            program = isinstance(value, dict) and value.get("format") == PROGRAM_FORMAT
+            a = None if program else np.asarray(value, dtype=np.float64)
         except (OSError, ValueError, TypeError) as err:
             raise UserError(f"--known-input: {source} is not a numeric matrix "
                             f"({str(err).splitlines()[0] if str(err) else type(err).__name__})"
                             ) from None
+        if a is None:
+            return _known_program(source, value, n, m)
         if a.shape != (n, m):
             raise UserError(f"--known-input: {source} holds a matrix of shape {a.shape}; the "
                             f"data need n x m = {n} x {m}")
@@ -335,6 +336,12 @@ def _known_program(source: str, data: dict, n: int, m: int) -> str:
     from softpinn.learn.errors import UserError
     from softpinn.learn.known import known_input_text, parse_known_input
 
+    outs = data.get("outputs")
+    named = outs[0].get("name") if isinstance(outs, list) and len(outs) == 1 and isinstance(
+        outs[0], dict) else None
+    if named in ("M", "M_inv", "D", "G"):  # derive's other functions of q alone
+        raise UserError(f"--known-input: {source} is the program of {named}(q), not of the input "
+                        "matrix A(q) (derive writes it as A.program.json)")
     text = known_input_text(data)
     try:
         parse_known_input(text, n, m)
