@@ -12,6 +12,7 @@ digits after the point, like the paper's ``1.728e-03`` and ``1.293``. CSV keeps 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import math
 from collections.abc import Mapping, Sequence
@@ -282,24 +283,14 @@ def to_markdown(table: Table, *, precision: int = 3) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: each character LaTeX treats specially, and what stands for it (one ``str.translate``)
+_LATEX = str.maketrans({**{ch: "\\" + ch for ch in "&%$#_{}"}, "~": "\\textasciitilde{}",
+                        "^": "\\textasciicircum{}", "\\": "\\textbackslash{}",
+                        "±": "$\\pm$", "—": "--"})
+
+
 def _latex_escape(text: str) -> str:
-    out = []
-    for ch in text:
-        if ch in "&%$#_{}":
-            out.append("\\" + ch)
-        elif ch == "~":
-            out.append("\\textasciitilde{}")
-        elif ch == "^":
-            out.append("\\textasciicircum{}")
-        elif ch == "\\":
-            out.append("\\textbackslash{}")
-        elif ch == "±":
-            out.append("$\\pm$")
-        elif ch == "—":
-            out.append("--")
-        else:
-            out.append(ch)
-    return "".join(out)
+    return text.translate(_LATEX)
 
 
 def to_latex(
@@ -405,10 +396,14 @@ def write_table(table: Table, out_dir: str | Path, stem: str, *, precision: int 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
+    # every number formatted once for the Markdown and the LaTeX (text passes through
+    # format_number unchanged); the CSV keeps the numbers at full precision
+    shown = dataclasses.replace(table, rows=tuple(
+        tuple(format_number(x, precision) for x in row) for row in table.rows))
     for ext, text in (
-        ("md", to_markdown(table, precision=precision)),
+        ("md", to_markdown(shown, precision=precision)),
         ("csv", to_csv(table)),
-        ("tex", to_latex(table, precision=precision, label=f"tab:{stem}")),
+        ("tex", to_latex(shown, precision=precision, label=f"tab:{stem}")),
     ):
         path = out / f"{stem}.{ext}"
         tmp = path.with_suffix(path.suffix + ".tmp")
