@@ -77,9 +77,10 @@ def register(subparsers) -> None:
                    help="override every model's L-BFGS iterations after AdamW")
     r.add_argument("--float32", action="store_true", help="train in float32")
     r.add_argument("--jobs", type=int, default=1, metavar="N",
-                   help="train and analyse N models at a time, each in a process of its own "
-                        "(the tasks and the experiment; same results, sooner on a machine with "
-                        "cores to spare)")
+                   help="train and analyse N models at a time, each in a process of its own, "
+                        "and draw a task's figures of each data set as soon as its models are "
+                        "done (the tasks and the experiment; same results, sooner on a machine "
+                        "with cores to spare)")
     r.add_argument("--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=cmd_reproduce)
 
