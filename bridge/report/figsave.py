@@ -19,8 +19,9 @@ DPI = 300
 #: the resolution of a draft (quick run) PNG
 DRAFT_DPI = 100
 #: the most pixels of a report PNG: a figure too large for :data:`DPI` (task 5's 36 panels of
-#: P(q), 16.6 x 13.9 in) is written at the resolution that fills it (186 dpi there, 2.1x
-#: faster to write, still 400 px a panel); figures of a page's size keep 300 dpi
+#: P(q), 16.6 x 13.9 in) is written at the resolution that fills it (186 dpi there, about
+#: 500 px a panel; a like figure took 7.3 s to write at 300 dpi, 3.8 s at 150); figures of a
+#: page's size keep 300 dpi
 MAX_PIXELS = 8_000_000
 
 _DRAFT = contextvars.ContextVar("softpinn_draft_figures", default=False)
