@@ -267,6 +267,8 @@ def _model_config(args, n: int, m: int, data=None, train_ids=None):
         if "input_form" in getattr(args, "given", ()) and args.input_form != "known":
             raise UserError(f"--known-input fixes A(q): leave out --input-form "
                             f"{args.input_form}")
+        from .known import known_input
+
         kw["known_input"] = known_input(args.known_input, n, m)
         input_form = "known"
     return ModelConfig(
@@ -280,74 +282,6 @@ def _model_config(args, n: int, m: int, data=None, train_ids=None):
         dtype="float32" if args.float32 else "float64",
         **kw,
     )
-
-
-def known_input(source: str, n: int, m: int) -> str:
-    """``--known-input``: the ``known_input`` text of a constant matrix file (.npy, or .json
-    with a list of rows) or of a symbolic model's exact A(q) (a preset name or a spec path),
-    checked against the data's n coordinates and m inputs."""
-    from pathlib import Path
-
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.known import PROGRAM_FORMAT, known_input_text
-
-    path = Path(source)
-    if path.suffix in (".npy", ".json"):
-        if not path.is_file():
-            raise UserError(f"--known-input: no such file {source}")
-        import numpy as np
-
-        try:
-            if path.suffix == ".npy":
-                value = np.load(path, allow_pickle=False)
-            else:
-                value = json.loads(path.read_text("utf-8"))
-            program = isinstance(value, dict) and value.get("format") == PROGRAM_FORMAT
-            a = None if program else np.asarray(value, dtype=np.float64)
-        except (OSError, ValueError, TypeError) as err:
-            raise UserError(f"--known-input: {source} is not a numeric matrix "
-                            f"({str(err).splitlines()[0] if str(err) else type(err).__name__})"
-                            ) from None
-        if a is None:
-            return _known_program(source, value, n, m)
-        if a.shape != (n, m):
-            raise UserError(f"--known-input: {source} holds a matrix of shape {a.shape}; the "
-                            f"data need n x m = {n} x {m}")
-        if not np.all(np.isfinite(a)):
-            raise UserError(f"--known-input: {source} holds NaN or inf")
-        return known_input_text(a)
-    from softpinn.bridge.exact.serialize import spec_known_input
-
-    try:
-        text, sn, sm = spec_known_input(source)
-    except Exception as err:
-        if getattr(err, "softpinn_user_error", False):
-            raise UserError(f"--known-input: {err}") from None
-        raise
-    if (sn, sm) != (n, m):
-        raise UserError(f"--known-input: model {source} has n = {sn} coordinates and m = {sm} "
-                        f"inputs; the data have n = {n}, m = {m}")
-    return text
-
-
-def _known_program(source: str, data: dict, n: int, m: int) -> str:
-    """``--known-input A.program.json``: A(q) as a replayable program (``softpinn derive
-    --programs``), checked to be a function of the data's n coordinates with an n x m output."""
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.known import known_input_text, parse_known_input
-
-    outs = data.get("outputs")
-    named = outs[0].get("name") if isinstance(outs, list) and len(outs) == 1 and isinstance(
-        outs[0], dict) else None
-    if named in ("M", "M_inv", "D", "G"):  # derive's other functions of q alone
-        raise UserError(f"--known-input: {source} is the program of {named}(q), not of the input "
-                        "matrix A(q) (derive writes it as A.program.json)")
-    text = known_input_text(data)
-    try:
-        parse_known_input(text, n, m)
-    except UserError as err:
-        raise UserError(f"--known-input: {source}: {err}") from None
-    return text
 
 
 def cmd_train(args) -> int:
