@@ -11,6 +11,11 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")
 from softpinn.learn.xlaflags import with_fast_compile  # noqa: E402
 
 os.environ["XLA_FLAGS"] = with_fast_compile(os.environ.get("XLA_FLAGS"))
+# XLA's compiled programs shared by the test processes and kept for the next run, as the CLI
+# does (learn/jitcache.py; SOFTPINN_JIT_CACHE=off runs the suite without)
+from softpinn.learn.jitcache import enable_compile_cache  # noqa: E402
+
+enable_compile_cache()
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

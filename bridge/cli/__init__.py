@@ -24,6 +24,10 @@ COMMAND_MODULES = (
     "softpinn.bridge.cli.control",
 )
 
+#: Commands that compile JAX programs: they (and the processes they start) share XLA's compiled
+#: programs through the persistent cache of :mod:`softpinn.learn.jitcache`.
+JIT_COMMANDS = frozenset({"train", "predict", "analyze", "reproduce", "sweep", "export", "control"})
+
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors: ``softpinn: error: ...`` and exit status 2."""
@@ -85,6 +89,10 @@ def _as_flag(message: str, parser: argparse.ArgumentParser, args) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command in JIT_COMMANDS:
+        from ...learn.jitcache import enable_compile_cache
+
+        enable_compile_cache()
     try:
         status = args.func(args)
     except KeyboardInterrupt:
