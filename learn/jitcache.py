@@ -26,6 +26,7 @@ used only if that load succeeded silently, and the answer is kept in ``probe.jso
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
 import os
 import platform
@@ -147,12 +148,14 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
         return None
     if not os.access(folder, os.W_OK) or not probe(folder):
         return None
-    settings = {"JAX_COMPILATION_CACHE_DIR": str(folder),
-                "JAX_COMPILATION_CACHE_MAX_SIZE": str(MAX_BYTES)}
-    env.update(settings)
+    # JAX's size bound needs filelock (a dependency of softpinn; without it JAX would refuse to
+    # open the cache, so the cache then grows without a bound instead)
+    limit = MAX_BYTES if importlib.util.find_spec("filelock") is not None else -1
+    env.update({"JAX_COMPILATION_CACHE_DIR": str(folder),
+                "JAX_COMPILATION_CACHE_MAX_SIZE": str(limit)})
     if environ is None and "jax" in sys.modules:
         import jax
 
         jax.config.update("jax_compilation_cache_dir", str(folder))
-        jax.config.update("jax_compilation_cache_max_size", MAX_BYTES)
+        jax.config.update("jax_compilation_cache_max_size", limit)
     return folder
