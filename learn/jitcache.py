@@ -46,7 +46,8 @@ _OFF = {"0", "off", "no", "false", "none", ""}
 
 def _machine_key() -> str:
     """A short hash of what a compiled program depends on outside its cache key: the CPU's
-    model and feature flags, and the jaxlib binary (its version, size and time)."""
+    model and feature flags, and the jaxlib build (its version and its libraries' sizes: the
+    same wheel in two environments shares a folder)."""
     parts = [platform.system(), platform.machine()]
     try:
         with open("/proc/cpuinfo") as f:
@@ -61,7 +62,7 @@ def _machine_key() -> str:
         parts.append(jaxlib.version.__version__)
         for lib in sorted(Path(jaxlib.__file__).parent.glob("*jax*.so")):
             st = lib.stat()
-            parts.append(f"{lib.name}:{st.st_size}:{st.st_mtime_ns}")
+            parts.append(f"{lib.name}:{st.st_size}")
     except (ImportError, OSError):
         parts.append("no-jaxlib")
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
@@ -98,7 +99,9 @@ print(int("/jax/compilation_cache/cache_hits" in events))
 def probe(folder: Path, timeout: float = 60.0) -> bool:
     """Whether programs XLA caches in ``folder`` load again on this machine: a tiny program
     compiled and cached by one subprocess and loaded by a second, which must find it and log
-    nothing. The answer is kept in ``folder/probe.json`` and read from there afterwards."""
+    nothing about it. The answer is kept in ``folder/probe.json`` and read from there
+    afterwards; a probe that could not run (it failed, or took over ``timeout`` seconds)
+    answers False and keeps nothing, so the next process asks again."""
     record = folder / "probe.json"
     try:
         return bool(json.loads(record.read_text())["ok"])
@@ -112,12 +115,10 @@ def probe(folder: Path, timeout: float = 60.0) -> bool:
         try:
             run = subprocess.run([sys.executable, "-c", _PROBE, str(where)], env=env,
                                  capture_output=True, text=True, timeout=timeout)
-        except (OSError, subprocess.TimeoutExpired) as exc:
-            ok, why = False, f"the probe did not run ({type(exc).__name__})"
-            break
+        except (OSError, subprocess.TimeoutExpired):
+            return False  # the probe could not run (a loaded machine?): no cache now, ask again
         if run.returncode != 0:
-            ok, why = False, f"the probe failed: {run.stderr.strip()[-300:]}"
-            break
+            return False
         if attempt == "load" and (run.stdout.strip() != "1" or "AOT" in run.stderr):
             ok, why = False, f"XLA did not load its cached program: {run.stderr.strip()[-300:]}"
     try:

@@ -58,6 +58,12 @@ def test_probe_loads_a_cached_program_and_remembers(tmp_path):
     assert jitcache.probe(folder) is False  # read back, not probed again
 
 
+def test_a_probe_that_cannot_run_keeps_no_answer(tmp_path, monkeypatch):
+    monkeypatch.setattr(jitcache.sys, "executable", "/bin/false")  # every subprocess fails
+    assert jitcache.probe(tmp_path / "machine") is False
+    assert not (tmp_path / "machine" / "probe.json").exists()  # asked again next time
+
+
 _PROGRAM = r"""
 import jax, jax.numpy as jnp, numpy as np, sys
 jax.config.update("jax_enable_x64", True)

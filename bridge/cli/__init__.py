@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "softpinn.bridge.cli.sweep",
     "softpinn.bridge.export.cli",
     "softpinn.bridge.cli.control",
+    "softpinn.bridge.cli.cache",
 )
 
 #: Commands that compile JAX programs: they (and the processes they start) share XLA's compiled
