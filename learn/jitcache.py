@@ -14,7 +14,9 @@ feature flags and jaxlib's build, because XLA compiles for the host CPU and a pr
 one machine may not run on another (a home folder shared by a cluster's nodes). The cache keeps
 at most :data:`MAX_BYTES`, evicting the programs used least recently (JAX's LRU cache, which
 locks with ``filelock``). ``SOFTPINN_JIT_CACHE=off`` turns it off; a ``JAX_COMPILATION_CACHE_DIR``
-the user set is left as it is.
+the user set is left as it is. A folder's programs are found only in that folder: JAX's cache
+keys include the folder's path (XLA's GPU autotuning cache lives inside it), so a copy of the
+folder elsewhere starts empty.
 
 Some CPUs reject every program XLA has cached on them (jax-ml/jax#38445: XLA's loader takes two
 LLVM tuning hints recorded at compile time, ``+prefer-no-gather/scatter``, for missing CPU
@@ -136,10 +138,16 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
     starts (through ``environ``, default this process's environment, which JAX reads when it
     is imported; JAX's settings too when it already is). Returns the folder in use, or None
     (turned off, a folder that cannot be written, a machine whose XLA rejects its own cached
-    programs). A ``JAX_COMPILATION_CACHE_DIR`` already set is kept and returned."""
+    programs). A folder already given to JAX (``JAX_COMPILATION_CACHE_DIR``, or
+    ``jax.config.update`` in this process) is kept and returned."""
     env = os.environ if environ is None else environ
     if env.get("JAX_COMPILATION_CACHE_DIR"):
         return Path(env["JAX_COMPILATION_CACHE_DIR"])
+    if environ is None and "jax" in sys.modules:
+        import jax
+
+        if jax.config.jax_compilation_cache_dir:  # set in this process (jax.config.update)
+            return Path(jax.config.jax_compilation_cache_dir)
     folder = cache_folder(env)
     if folder is None:
         return None
@@ -157,6 +165,7 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
     if environ is None and "jax" in sys.modules:
         import jax
 
+        # JAX opens its cache at the first compilation after a folder is set (tested)
         jax.config.update("jax_compilation_cache_dir", str(folder))
         jax.config.update("jax_compilation_cache_max_size", limit)
     return folder

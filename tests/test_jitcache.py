@@ -99,3 +99,38 @@ def test_cli_commands_that_compile_turn_the_cache_on(tmp_path, monkeypatch, caps
     assert cli.main(["derive", str(tmp_path / "missing.toml"), "--out", str(tmp_path / "d")]) == 2
     assert seen == [1]  # deriving compiles no JAX program: no probe, no cache
     assert "error" in capsys.readouterr().err
+
+
+_LATE = r"""
+import jax, jax.numpy as jnp
+jax.jit(lambda x: x + 1.0)(1.0)  # a compilation before the cache is turned on
+from softpinn.learn.jitcache import enable_compile_cache
+print(enable_compile_cache())
+jax.jit(lambda x: jnp.tanh(x) * 3.0)(jnp.ones(3))
+"""
+
+
+def test_turned_on_after_a_first_compilation(tmp_path):
+    """A process that compiled before turning the cache on still writes to it (JAX opens its
+    cache at the first compilation after a folder is set)."""
+    env = {**os.environ, "SOFTPINN_JIT_CACHE": str(tmp_path), "JAX_PLATFORMS": "cpu",
+           "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0"}
+    env.pop("JAX_COMPILATION_CACHE_DIR", None)
+    out = subprocess.run([sys.executable, "-c", _LATE], env=env, capture_output=True, text=True,
+                         timeout=120, check=True).stdout.split()
+    folder = jitcache.Path(out[-1])
+    assert folder.parent == tmp_path and list(folder.glob("jit__lambda-*-cache"))
+
+
+def test_a_folder_given_to_jax_in_this_process_is_kept(tmp_path, monkeypatch):
+    import jax
+
+    before = jax.config.jax_compilation_cache_dir
+    monkeypatch.delenv("JAX_COMPILATION_CACHE_DIR", raising=False)
+    monkeypatch.setenv("SOFTPINN_JIT_CACHE", str(tmp_path / "ours"))
+    jax.config.update("jax_compilation_cache_dir", str(tmp_path / "theirs"))
+    try:
+        assert jitcache.enable_compile_cache() == tmp_path / "theirs"
+        assert "JAX_COMPILATION_CACHE_DIR" not in os.environ and not (tmp_path / "ours").exists()
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
