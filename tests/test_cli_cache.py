@@ -66,3 +66,18 @@ def test_cache_off_and_a_users_jax_folder(tmp_path, monkeypatch, capsys):
     text = capsys.readouterr().out
     assert "XLA programs: off" in text and "0 libraries" in text
     assert f"JAX_COMPILATION_CACHE_DIR={tmp_path / 'theirs'} is set" in text
+
+
+def test_clear_says_what_it_could_not_remove(tmp_path, monkeypatch, capsys):
+    from softpinn.bridge.cli import cache
+
+    _fill(tmp_path, monkeypatch)
+
+    def refuse(path):
+        raise PermissionError(13, "Permission denied")
+
+    monkeypatch.setattr(cache, "_remove", refuse)
+    assert main(["cache", "--clear"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("softpinn: error: could not remove 10 of the cached entries, e.g. ")
+    assert err.endswith(": Permission denied") and "\n" not in err

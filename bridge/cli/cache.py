@@ -21,6 +21,8 @@ import re
 import shutil
 from pathlib import Path
 
+from ..errors import UserError
+
 _CODE = re.compile(r"(kernel_)?[0-9a-f]{24}")
 _BUILD = re.compile(r"\.build-.+")
 _MACHINE = re.compile(r"[0-9a-f]{16}")
@@ -69,10 +71,13 @@ def program_entries(base: Path) -> list[Path]:
 
 
 def _remove(path: Path) -> None:
-    if path.is_dir() and not path.is_symlink():
-        shutil.rmtree(path, ignore_errors=True)
-    else:
-        path.unlink(missing_ok=True)
+    try:
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+    except FileNotFoundError:  # gone already (another process cleared it)
+        pass
 
 
 def cmd_cache(args) -> int:
@@ -97,20 +102,32 @@ def cmd_cache(args) -> int:
             "probe": _probe(here),
         },
     }
+    failed = []
     if args.clear:
         for p in code + programs:
-            _remove(p)
+            try:
+                _remove(p)
+            except OSError as exc:
+                failed.append(f"{p}: {exc.strerror or type(exc).__name__}")
         for d in {p.parent for p in programs}:
             try:
                 d.rmdir()  # only if softpinn's files were all there was
             except OSError:
                 pass
         record["cleared"] = True
+        record["failed"] = failed
     if args.json:
         print(json.dumps(record))
-        return 0
+    else:
+        _print(record, args.clear and not failed, here)
+    if failed:
+        raise UserError(f"could not remove {len(failed)} of the cached entries, e.g. {failed[0]}")
+    return 0
+
+
+def _print(record: dict, cleared: bool, here: Path | None) -> None:
     c, g = record["code"], record["programs"]
-    verb = "removed " if args.clear else ""
+    verb = "removed " if cleared else ""
     print(f"compiled C (models, kernels, controllers): {c['folder']}")
     print(f"  {verb}{c['libraries']} libraries, {_mb(c['bytes'])}")
     if g["folder"] is None:
@@ -118,15 +135,14 @@ def cmd_cache(args) -> int:
     else:
         print(f"XLA programs (this machine and jaxlib): {g['folder']}")
         print(f"  {verb}{g['programs']} programs, {_mb(g['bytes'])}"
-              + (f"; {g['probe']}" if g["probe"] and not args.clear else ""))
+              + (f"; {g['probe']}" if g["probe"] and not cleared else ""))
     if g["other_folders"]:
         print(f"  {verb}{g['other_folders']} other machines' or jaxlib builds' folders, "
               f"{_mb(g['other_bytes'])}")
     theirs = os.environ.get("JAX_COMPILATION_CACHE_DIR")
     if theirs and (here is None or Path(theirs) != here):
-        print(f"JAX_COMPILATION_CACHE_DIR={theirs} is set: JAX uses that folder instead "
-              "(yours: not listed or cleared here)")
-    return 0
+        print(f"JAX_COMPILATION_CACHE_DIR={theirs} is set: JAX keeps its programs there "
+              "instead (a folder of yours: not listed or cleared here)")
 
 
 def _probe(folder: Path | None) -> str | None:
