@@ -32,6 +32,7 @@ import importlib.util
 import json
 import os
 import platform
+import shutil
 import subprocess
 import sys
 from collections.abc import MutableMapping
@@ -109,7 +110,7 @@ def probe(folder: Path, timeout: float = 60.0) -> bool:
         return bool(json.loads(record.read_text())["ok"])
     except (OSError, ValueError, KeyError, TypeError):
         pass
-    where = folder / "probe"
+    where = folder / f"probe-{os.getpid()}"  # a folder of its own: processes may probe at once
     env = {**os.environ, "JAX_PLATFORMS": "cpu"}
     env.pop("JAX_COMPILATION_CACHE_DIR", None)
     ok, why = True, "a cached program loaded again"
@@ -118,14 +119,16 @@ def probe(folder: Path, timeout: float = 60.0) -> bool:
             run = subprocess.run([sys.executable, "-c", _PROBE, str(where)], env=env,
                                  capture_output=True, text=True, timeout=timeout)
         except (OSError, subprocess.TimeoutExpired):
+            run = None
+        if run is None or run.returncode != 0:
+            shutil.rmtree(where, ignore_errors=True)
             return False  # the probe could not run (a loaded machine?): no cache now, ask again
-        if run.returncode != 0:
-            return False
         if attempt == "load" and (run.stdout.strip() != "1" or "AOT" in run.stderr):
             ok, why = False, f"XLA did not load its cached program: {run.stderr.strip()[-300:]}"
+    shutil.rmtree(where, ignore_errors=True)
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = record.with_suffix(".tmp")
+        tmp = record.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_text(json.dumps({"ok": ok, "why": why}) + "\n")
         tmp.replace(record)
     except OSError:

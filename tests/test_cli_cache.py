@@ -24,7 +24,7 @@ def _fill(tmp_path, monkeypatch):
         (here / name).write_bytes(b"y" * 500)
         (here / name.replace("-cache", "-atime")).write_bytes(b"t" * 8)
     (here / "probe.json").write_text(json.dumps({"ok": True, "why": "loaded"}))
-    (here / "probe").mkdir()
+    (here / "probe-123").mkdir()  # a probe's leftovers (a process killed while probing)
     other = jit / "0123456789abcdef"
     other.mkdir()
     (other / "jit_h-ef56-cache").write_bytes(b"z" * 300)

@@ -26,7 +26,7 @@ from ..errors import UserError
 _CODE = re.compile(r"(kernel_)?[0-9a-f]{24}")
 _BUILD = re.compile(r"\.build-.+")
 _MACHINE = re.compile(r"[0-9a-f]{16}")
-_PROGRAM_FILES = re.compile(r".+-(cache|atime)|probe\.json|probe\.tmp|\.lockfile|probe")
+_PROGRAM_FILES = re.compile(r".+-(cache|atime)|probe\.json|probe\.\d+\.tmp|probe-\d+|\.lockfile")
 
 
 def register(subparsers) -> None:
