@@ -195,6 +195,106 @@ def test_sqp_finds_the_ipopt_optimum(specs):
     np.testing.assert_allclose(u["sqp"], u["ipopt"], atol=1e-6)
 
 
+def _stage_sens(field, frozen, x, u, dt=0.05, substeps=3):
+    from softpinn.bridge.control.mpc import _stage_functions
+
+    stage, roll = _stage_functions(field, dt, substeps, frozen=frozen)
+    return [np.asarray(v) for v in stage(x, u)], np.asarray(roll(x, u))
+
+
+def test_frozen_sensitivities_are_rk4s_own_on_a_linear_field(specs):
+    """For a linear field the frozen Jacobian is the Jacobian: the closed form P^s,
+    (I + ... + P^{s-1}) h Q B equals RK4's variational equations to rounding."""
+    from softpinn.bridge.control import linearised
+
+    tm = TrueModel(specs["full"])
+    lin = linearised(tm, [0.2, -0.1, 0.0, 0.0], [0.5, -0.3], tip_output(tm.spec))
+    x, u = np.array([0.3, -0.2, 0.4, 0.1]), np.array([0.7, -0.2])
+    (y1, A1, B1), r1 = _stage_sens(lin.field, False, x, u)
+    (y2, A2, B2), r2 = _stage_sens(lin.field, True, x, u)
+    np.testing.assert_allclose(y2, y1, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(r2, r1, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(A2, A1, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(B2, B1, rtol=0, atol=1e-13)
+
+
+def test_frozen_sensitivities_are_second_order_on_a_nonlinear_arm():
+    """Task 4's spatial arm (nonlinear), near its hanging equilibrium and moving: the stage's
+    state is the exact RK4 step; the frozen sensitivities (the Jacobian at the step's
+    midpoint) differ from the exact ones by O(h²): halving the step quarters their error
+    (2 % at 20 ms)."""
+    from softpinn.bridge.control import default_center
+
+    tm = TrueModel("task4")
+    field = from_true(tm, tip_output(tm.spec)).field
+    qc, uc = equilibrium(tm, default_center(tm.spec))
+    rng = np.random.default_rng(3)
+    x = np.concatenate([qc + rng.uniform(-0.05, 0.05, tm.n), rng.uniform(-0.5, 0.5, tm.n)])
+    errors = []
+    for dt in (0.02, 0.01):
+        (y1, A1, B1), _ = _stage_sens(field, False, x, uc, dt=dt, substeps=2)
+        (y2, A2, B2), r2 = _stage_sens(field, True, x, uc, dt=dt, substeps=2)
+        np.testing.assert_array_equal(y2, r2)  # the stage's state is the roll's
+        np.testing.assert_allclose(y2, y1, rtol=0, atol=1e-13)
+        errors.append((np.linalg.norm(A2 - A1) / np.linalg.norm(A1 - np.eye(len(x))),
+                       np.linalg.norm(B2 - B1) / np.linalg.norm(B1)))
+    (a20, b20), (a10, b10) = errors
+    assert 0 < a10 < 0.01 and 0 < b10 < 1e-3, errors
+    assert 3.2 < a20 / a10 < 4.5 and 3.2 < b20 / b10 < 4.5, errors  # second order in h
+
+
+def test_frozen_sensitivities_converge_to_the_same_step(specs):
+    """An inexact-Jacobian SQP: the same closed-loop target, reached as closely."""
+    cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3,
+                    sensitivities="frozen", codegen=False)
+    _, q_star, u_star, res = _loop(specs["full"], [0.3, -0.2], steps=40, config=cfg)
+    m = metrics(res)
+    assert m["failures"] == 0 and not m["diverged"]
+    assert m["error_final"] < 1e-6, m
+    np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
+    with pytest.raises(UserError, match="sensitivities: expected one of exact, frozen"):
+        MPCConfig(sensitivities="approximate")
+
+
+def test_a_frozen_step_that_fails_is_redone_with_exact_sensitivities(specs):
+    """Where the frozen sensitivities give no descent (here: their gradient turned the wrong
+    way, so the line search fails), the iteration is redone with the exact ones, counted."""
+    tm = TrueModel(specs["full"])
+    cfg = MPCConfig(horizon=8, dt=0.05, sensitivities="frozen", codegen=False)
+    mpc = MPC(from_true(tm, tip_output(tm.spec)), cfg)
+    good = mpc._gn
+
+    def wrong(*args):
+        f, g, H = good(*args)
+        return f, -g, H
+
+    mpc._gn = wrong
+    R = np.tile([0.3, -0.2], (8, 1))
+    u, info = mpc.solve(np.zeros(2), np.zeros(2), R, np.zeros(2))
+    assert info["success"] and info["exact_iterations"] == 1, info
+    exact = MPC(from_true(tm, tip_output(tm.spec)),
+                MPCConfig(horizon=8, dt=0.05, codegen=False))
+    u_exact, info_exact = exact.solve(np.zeros(2), np.zeros(2), R, np.zeros(2))
+    np.testing.assert_allclose(u, u_exact, rtol=0, atol=1e-12)
+    assert "exact_iterations" not in info_exact
+
+
+def test_a_qp_answer_within_the_solvers_tolerance_of_the_box_is_kept(specs):
+    """daqp stops within its feasibility tolerance: a step 1e-6 outside a bound is clipped
+    and used; one a tenth of the box outside is a failed QP."""
+    tm = TrueModel(specs["forced"])
+    cfg = MPCConfig(horizon=3, dt=0.05, u_min=(-1.0,), u_max=(1.0,), codegen=False)
+    mpc = MPC(from_true(tm, tip_output(tm.spec)), cfg)
+    H, g, U = np.eye(3), np.array([-5.0, 0.0, 0.0]), np.zeros(3)
+    for miss, kept in ((1e-6, True), (0.2, False)):
+        mpc._qp = lambda miss=miss, **kw: {"x": np.array([1.0 + miss, 0.0, 0.0])}
+        mpc._qp.stats = lambda: {"success": True}
+        d, ok = mpc._qp_step(H, g, U)
+        assert ok is kept, (miss, d)
+        if kept:
+            np.testing.assert_array_equal(d, [1.0, 0.0, 0.0])
+
+
 def test_input_bounds_hold(specs):
     cfg = MPCConfig(horizon=10, dt=0.05, u_min=(-0.5,), u_max=(0.7,), codegen=False)
     _, _, _, res = _loop(specs["forced"], [0.3, 0.3], steps=20, config=cfg)
@@ -346,6 +446,8 @@ def test_cli_bad_inputs(specs, runs, tmp_path, capsys):
     assert "--rate" in error(specs["forced"], "--rate", 0, "--out", a)
     assert "--horizon: expected an integer >= 1" in error(specs["forced"], "--horizon", 0,
                                                           "--out", a)
+    assert "--stiffness: expected a finite number >= 0" in error(specs["forced"], "--stiffness",
+                                                                 -1, "--out", a)
     (tmp_path / "file").write_text("x")
     assert "is a file" in error(specs["forced"], "--out", tmp_path / "file")
     assert "is a file" in error(specs["forced"], "--out", tmp_path / "file" / "sub")

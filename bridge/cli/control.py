@@ -16,7 +16,7 @@ from softpinn.bridge.errors import UserError
 
 
 def register(subparsers) -> None:
-    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SOLVERS, MPCConfig
+    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SENSITIVITIES, SOLVERS, MPCConfig
 
     d = MPCConfig()
     p = subparsers.add_parser(
@@ -74,6 +74,10 @@ def register(subparsers) -> None:
     m.add_argument("--substeps", type=int, default=d.substeps, metavar="K",
                    help="least RK4 sub-steps per control step in the prediction (more for a "
                         "model that is stiff at the centre)")
+    m.add_argument("--stiffness", type=float, default=d.stiffness, metavar="HR",
+                   help="raise the sub-steps until h max|lambda| <= HR for the eigenvalues "
+                        "lambda of the model's Jacobian at the centre (RK4 is stable up to "
+                        "about 2.8; 0: never raise them)")
     m.add_argument("--weight-y", dest="weight_y", type=float, default=d.weight_y, metavar="W",
                    help="weight of the squared output error (per unit of the output squared)")
     m.add_argument("--weight-u", dest="weight_u", type=float, default=d.weight_u, metavar="W",
@@ -98,6 +102,11 @@ def register(subparsers) -> None:
                         "step's prediction error with this gain in [0, 1] and predict with it "
                         "(removes a learned model's steady offset; 0: off; 0.2-0.3 worked "
                         "best on task 4)")
+    m.add_argument("--sensitivities", choices=SENSITIVITIES, default=d.sensitivities,
+                   help="the SQP's sensitivities: exact (RK4's variational equations, four "
+                        "Jacobians of the model per sub-step) or frozen (one Jacobian per "
+                        "control step; the prediction stays exact, a network's solve is "
+                        "several times faster)")
     m.add_argument("--no-codegen", action="store_true",
                    help="run the solver's functions in CasADi's virtual machine, no C compiler")
     m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
@@ -140,9 +149,11 @@ def cmd_control(args) -> int:
         u_max = tuple(float(v) for v in data_bounds[1]) if u_max is None else u_max
     config = MPCConfig(
         horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
+        stiffness=args.stiffness,
         weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
         max_iter=args.max_iter, codegen=not args.no_codegen, offset_free=args.offset_free,
+        sensitivities=args.sensitivities,
     )
     bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)
     try:

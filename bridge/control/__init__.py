@@ -23,7 +23,7 @@ from .models import (
     resolve_run,
     tip_output,
 )
-from .mpc import MPC, QP_SOLVERS, SOLVERS, MPCConfig, rk4_map
+from .mpc import MPC, QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig, rk4_map
 from .references import (
     circle_reference,
     circle_start,
@@ -40,6 +40,7 @@ __all__ = [
     "MPCConfig",
     "PredictionModel",
     "QP_SOLVERS",
+    "SENSITIVITIES",
     "REFERENCES",
     "SOLVERS",
     "circle_reference",

@@ -9,12 +9,15 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["MPCConfig", "SOLVERS", "QP_SOLVERS"]
+__all__ = ["MPCConfig", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
 
 #: the MPC solvers: Gauss-Newton SQP (compiled C, dense QP) and IPOPT (exact Hessian)
 SOLVERS = ("sqp", "ipopt")
 #: dense QP solvers for the SQP's box-constrained steps (all ship with CasADi's wheels)
 QP_SOLVERS = ("daqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
+#: how the SQP gets each step's sensitivities: RK4's exact variational equations, or one
+#: Jacobian per step held over it (several times faster for a network's field)
+SENSITIVITIES = ("exact", "frozen")
 
 
 @dataclass(frozen=True)
@@ -41,6 +44,12 @@ class MPCConfig:
     that starts with the arm at rest (``MPC.reset(rest=True)``, which :func:`closed_loop` does
     when it sees the arm sit still under its first input) starts d̂ at x − F(x, u) there, what
     the model gets wrong about that equilibrium, instead of at zero.
+    ``sensitivities`` (SQP): ``"exact"`` differentiates every RK4 stage of the prediction
+    (four Jacobians of the model per sub-step); ``"frozen"`` takes one Jacobian per control
+    step, at its midpoint, and the sensitivities RK4 gives that linearisation in closed
+    form: the prediction and the cost stay exact, the Gauss-Newton step is approximate (an
+    iteration that gives no step is redone with the exact sensitivities), and a solve with
+    a network's field costs a fraction (docs/control.md).
     """
 
     horizon: int = 20
@@ -59,6 +68,7 @@ class MPCConfig:
     tol: float = 1e-6
     codegen: bool = True
     offset_free: float = 0.0
+    sensitivities: str = "exact"
 
     def __post_init__(self):
         if self.max_iter is None:
@@ -82,6 +92,9 @@ class MPCConfig:
             raise UserError(f"offset_free: expected a gain in [0, 1], got {self.offset_free!r}")
         if self.solver not in SOLVERS:
             raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if self.sensitivities not in SENSITIVITIES:
+            raise UserError(f"sensitivities: expected one of {', '.join(SENSITIVITIES)}, got "
+                            f"{self.sensitivities!r}")
         if self.qpsol not in QP_SOLVERS:
             raise UserError(f"qpsol: expected one of {', '.join(QP_SOLVERS)}, got "
                             f"{self.qpsol!r}")

@@ -36,8 +36,9 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     ``reference`` has shape (steps + horizon, ny): r_k for k = 1 ... steps + horizon (r_k is
     the output wanted at time k dt). Returns ``x`` (K + 1, 2n), ``y`` (K + 1, ny), ``u``
     (K, m), ``r`` (K + 1, ny) (r_0 repeats r_1), ``success``, ``status``, ``seconds``,
-    ``iterations`` and ``cost`` per step, and ``diverged`` (the plant failed or left the
-    finite numbers; then K < steps). ``progress``: called once per step.
+    ``iterations``, ``exact_iterations`` (a frozen-sensitivity SQP's iterations redone with
+    the exact ones; 0 otherwise) and ``cost`` per step, and ``diverged`` (the plant failed or
+    left the finite numbers; then K < steps). ``progress``: called once per step.
     """
     model = controller.model
     n, m, N = model.n, model.m, controller.config.horizon
@@ -49,7 +50,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     if x.size != 2 * n:
         raise UserError(f"x0: expected {2 * n} values (q, q̇), got {x.size}")
     u_prev = np.zeros(m) if u0 is None else np.asarray(u0, float).ravel()
-    xs, us, ok, status, secs, its, costs = [x], [], [], [], [], [], []
+    xs, us, ok, status, secs, its, costs, exact = [x], [], [], [], [], [], [], []
     diverged = False
     if at_rest is None:  # watch the arm for one step before the loop starts
         at_rest = False
@@ -71,6 +72,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
         status.append(str(info.get("status")))
         secs.append(info["seconds"])
         its.append(info["iterations"])
+        exact.append(info.get("exact_iterations", 0))
         costs.append(info.get("cost", np.nan))
         u_prev = u
         if progress is not None:
@@ -85,14 +87,16 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     r = np.concatenate([reference[:1], reference[: len(xs) - 1]])
     return {"x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
             "success": np.array(ok, bool), "status": status, "seconds": np.array(secs),
-            "iterations": np.array(its, int), "cost": np.array(costs, float),
+            "iterations": np.array(its, int), "exact_iterations": np.array(exact, int),
+            "cost": np.array(costs, float),
             "diverged": diverged, "at_rest": bool(at_rest)}
 
 
 def metrics(result: dict) -> dict:
     """Tracking error ‖y - r‖ (RMS and max over steps 1 ..., in the units of y), input effort
     (RMS of u and of its change per step), failures, steps, divergence, whether the loop
-    started at rest, solve times (ms)."""
+    started at rest, iterations (and how many a frozen-sensitivity SQP redid with exact
+    sensitivities), solve times (ms)."""
     e = np.linalg.norm(result["y"][1:] - result["r"][1:], axis=1)
     u = result["u"]
     du = np.diff(u, axis=0) if len(u) > 1 else np.zeros((0, u.shape[1]))
@@ -112,6 +116,7 @@ def metrics(result: dict) -> dict:
         "diverged": bool(result.get("diverged", False)),
         "at_rest": bool(result.get("at_rest", False)),
         "iterations_mean": stat(np.mean, np.asarray(result["iterations"], float)),
+        "exact_iterations": int(np.sum(result.get("exact_iterations", 0))),
         "solve_ms_mean": stat(np.mean, s),
         "solve_ms_median": stat(np.median, s),
         "solve_ms_p95": stat(lambda a: np.percentile(a, 95), s),

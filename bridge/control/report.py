@@ -35,6 +35,9 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         + (f" (Gauss-Newton SQP, QP {cfg['qpsol']}, "
            + ("one iteration per step: the real-time iteration)" if cfg["max_iter"] == 1
               else f"at most {cfg['max_iter']} iterations)")
+           + (", frozen sensitivities: one Jacobian of the model per step, an iteration that "
+              "gives no step redone with the exact ones (column 'iterations': how many)"
+              if cfg.get("sensitivities") == "frozen" else "")
            if cfg["solver"] == "sqp" else f" (at most {cfg['max_iter']} iterations)")
         + f"; weights: output {cfg['weight_y']:g}, input {cfg['weight_u']:g}, input change "
         f"{cfg['weight_du']:g}; input bounds: {bounds}"
@@ -85,10 +88,13 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         ]
         for name, m in per.items():
             fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
+            its = _num(m["iterations_mean"], ".2g") + (
+                f" ({m['exact_iterations']} exact)" if cfg.get("sensitivities") == "frozen"
+                else "")
             lines.append(
                 f"| {name} | {_num(m['error_rms'])} | {_num(m['error_max'])} | "
                 f"{_num(m['error_final'])} | {_num(m['effort_rms'])} | "
-                f"{_num(m['effort_rate_rms'])} | {fail} | {_num(m['iterations_mean'], '.2g')} | "
+                f"{_num(m['effort_rate_rms'])} | {fail} | {its} | "
                 f"{_num(m['solve_ms_mean'], '.2f')} | {_num(m['solve_ms_p95'], '.2f')} | "
                 f"{_num(m['solve_ms_max'], '.2f')} |")
         lines.append("")
