@@ -252,8 +252,55 @@ def test_frozen_sensitivities_converge_to_the_same_step(specs):
     assert m["failures"] == 0 and not m["diverged"]
     assert m["error_final"] < 1e-6, m
     np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
-    with pytest.raises(UserError, match="sensitivities: expected one of exact, frozen"):
+    with pytest.raises(UserError, match="sensitivities: expected one of exact, frozen, lifted"):
         MPCConfig(sensitivities="approximate")
+
+
+def test_the_lifted_step_about_the_exact_states_is_the_frozen_step():
+    """Task 4's arm (nonlinear). Linearised about the plan's own predicted states (δ₀ = 0, no
+    change of the disturbance), the lifted Gauss-Newton step is the frozen one: f, g, H to
+    rounding. A measurement off the prediction moves f as the rollout does, to the frozen
+    sensitivities' accuracy (the correction δ_{k+1} = A_k δ_k uses them): under a hundredth
+    of the change at either offset."""
+    from softpinn.bridge.control import default_center
+
+    tm = TrueModel("task4")
+    cfg = MPCConfig(horizon=6, dt=0.02, sensitivities="lifted", codegen=False)
+    mpc = MPC(from_true(tm, tip_output(tm.spec)), cfg)
+    qc, uc = equilibrium(tm, default_center(tm.spec))
+    rng = np.random.default_rng(0)
+    x0 = np.concatenate([qc + rng.uniform(-0.02, 0.02, 3), rng.uniform(-0.1, 0.1, 3)])
+    U = uc[:, None] + rng.uniform(-0.2, 0.2, (3, 6))
+    R = np.asarray(tip_output(tm.spec)(qc)).ravel()[:, None] + rng.uniform(-0.01, 0.01, (3, 6))
+    up, d, nothing = uc, rng.uniform(-1e-4, 1e-4, 6), np.zeros(6)
+    _, X = mpc._cost(x0, U, R, up, d)
+    Xb = np.asarray(X)[:, :6]
+    lifted = [np.asarray(v) for v in mpc._gn_lifted(x0, Xb, U, R, up, d, nothing)]
+    frozen = [np.asarray(v) for v in mpc._gn(x0, U, R, up, d)]
+    for a, b in zip(lifted, frozen, strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-10, atol=1e-14)
+
+    def f(fn, *args):
+        return np.asarray(fn(*args)[0]).item()
+
+    ratios = []
+    for scale in (1e-3, 1e-4):
+        dx = scale * np.array([1.0, -2.0, 1.5, 3.0, -1.0, 2.0])
+        moved = f(mpc._gn_lifted, x0 + dx, Xb, U, R, up, d, nothing)
+        true = f(mpc._gn, x0 + dx, U, R, up, d)
+        ratios.append(abs(moved - true) / abs(true - frozen[0].item()))
+    assert max(ratios) < 0.01, ratios
+
+
+def test_lifted_sensitivities_converge_to_the_same_step(specs):
+    cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3,
+                    sensitivities="lifted", codegen=False)
+    _, q_star, u_star, res = _loop(specs["full"], [0.3, -0.2], steps=40, config=cfg)
+    m = metrics(res)
+    assert m["failures"] == 0 and not m["diverged"]
+    assert m["error_final"] < 1e-6, m
+    assert m["lifted_iterations"] >= 30, m  # all but the first and the transient's
+    np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
 
 
 def test_a_frozen_step_that_fails_is_redone_with_exact_sensitivities(specs):

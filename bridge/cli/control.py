@@ -104,9 +104,10 @@ def register(subparsers) -> None:
                         "best on task 4)")
     m.add_argument("--sensitivities", choices=SENSITIVITIES, default=d.sensitivities,
                    help="the SQP's sensitivities: exact (RK4's variational equations, four "
-                        "Jacobians of the model per sub-step) or frozen (one Jacobian per "
+                        "Jacobians of the model per sub-step); frozen (one Jacobian per "
                         "control step; the prediction stays exact, a network's solve is "
-                        "several times faster)")
+                        "several times faster); lifted (frozen, and each step linearised "
+                        "about the last plan's predicted states: one rollout per solve)")
     m.add_argument("--no-codegen", action="store_true",
                    help="run the solver's functions in CasADi's virtual machine, no C compiler")
     m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")

@@ -381,6 +381,7 @@ def _write_traces(out: Path, refs, traces, dt: float) -> list[Path]:
             arrays[f"{key}__success"] = res["success"]
             arrays[f"{key}__iterations"] = res["iterations"]
             arrays[f"{key}__exact_iterations"] = res["exact_iterations"]
+            arrays[f"{key}__lifted_iterations"] = res["lifted_iterations"]
         arrays["names"] = np.array(list(per))
         path = folder / f"{rname}.npz"
         tmp = folder / f".{rname}.tmp.npz"

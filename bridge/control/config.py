@@ -17,7 +17,7 @@ SOLVERS = ("sqp", "ipopt")
 QP_SOLVERS = ("daqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
 #: how the SQP gets each step's sensitivities: RK4's exact variational equations, or one
 #: Jacobian per step held over it (several times faster for a network's field)
-SENSITIVITIES = ("exact", "frozen")
+SENSITIVITIES = ("exact", "frozen", "lifted")
 
 
 @dataclass(frozen=True)
@@ -49,7 +49,10 @@ class MPCConfig:
     step, at its midpoint, and the sensitivities RK4 gives that linearisation in closed
     form: the prediction and the cost stay exact, the Gauss-Newton step is approximate (an
     iteration that gives no step is redone with the exact sensitivities), and a solve with
-    a network's field costs a fraction (docs/control.md).
+    a network's field costs a fraction; ``"lifted"``: frozen, and each solve's first step
+    linearised about the last plan's predicted states (shifted by a step, corrected to first
+    order for the measurement), so a solve needs one rollout, the line search's
+    (docs/control.md).
     """
 
     horizon: int = 20

@@ -37,7 +37,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     the output wanted at time k dt). Returns ``x`` (K + 1, 2n), ``y`` (K + 1, ny), ``u``
     (K, m), ``r`` (K + 1, ny) (r_0 repeats r_1), ``success``, ``status``, ``seconds``,
     ``iterations``, ``exact_iterations`` (a frozen-sensitivity SQP's iterations redone with
-    the exact ones; 0 otherwise) and ``cost`` per step, and ``diverged`` (the plant failed or
+    the exact ones; 0 otherwise), ``lifted_iterations`` (steps taken about the last plan's
+    states, sensitivities "lifted") and ``cost`` per step, and ``diverged`` (the plant failed or
     left the finite numbers; then K < steps). ``progress``: called once per step.
     """
     model = controller.model
@@ -50,7 +51,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     if x.size != 2 * n:
         raise UserError(f"x0: expected {2 * n} values (q, q̇), got {x.size}")
     u_prev = np.zeros(m) if u0 is None else np.asarray(u0, float).ravel()
-    xs, us, ok, status, secs, its, costs, exact = [x], [], [], [], [], [], [], []
+    xs, us, ok, status, secs, its, costs, exact, lifted = [x], [], [], [], [], [], [], [], []
     diverged = False
     if at_rest is None:  # watch the arm for one step before the loop starts
         at_rest = False
@@ -73,6 +74,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
         secs.append(info["seconds"])
         its.append(info["iterations"])
         exact.append(info.get("exact_iterations", 0))
+        lifted.append(info.get("lifted_iterations", 0))
         costs.append(info.get("cost", np.nan))
         u_prev = u
         if progress is not None:
@@ -88,6 +90,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     return {"x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
             "success": np.array(ok, bool), "status": status, "seconds": np.array(secs),
             "iterations": np.array(its, int), "exact_iterations": np.array(exact, int),
+            "lifted_iterations": np.array(lifted, int),
             "cost": np.array(costs, float),
             "diverged": diverged, "at_rest": bool(at_rest)}
 
@@ -117,6 +120,7 @@ def metrics(result: dict) -> dict:
         "at_rest": bool(result.get("at_rest", False)),
         "iterations_mean": stat(np.mean, np.asarray(result["iterations"], float)),
         "exact_iterations": int(np.sum(result.get("exact_iterations", 0))),
+        "lifted_iterations": int(np.sum(result.get("lifted_iterations", 0))),
         "solve_ms_mean": stat(np.mean, s),
         "solve_ms_median": stat(np.median, s),
         "solve_ms_p95": stat(lambda a: np.percentile(a, 95), s),

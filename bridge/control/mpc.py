@@ -12,9 +12,11 @@ with u_{-1} the input applied at the last step. Two solvers:
   (single shooting, condensed). One call of a compiled Function returns the cost, its gradient
   and the Gauss-Newton Hessian wy Jᵀ J + wu I + wdu Δᵀ Δ, where J = ∂y/∂u is chained from
   each stage's exact ∂x⁺/∂x, ∂x⁺/∂u (RK4's variational equations from the field's Jacobian:
-  one small C function called four times per sub-step); the box-constrained QP is solved by
-  a Cholesky solve when no bound is active, else
-  by a dense QP solver shipped with CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
+  one small C function called four times per sub-step; or, ``sensitivities="frozen"``, one
+  Jacobian per stage and RK4's sensitivities of that linearisation in closed form, and
+  ``"lifted"`` about the last plan's states, without a rollout); the box-constrained QP is
+  solved by a Cholesky solve when no bound is active, else by a dense QP solver shipped with
+  CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
   backtracking line search on the cost keeps each step a descent. The Functions are compiled
   through the project's code cache (:mod:`softpinn.symbolic.codegen`), so a model compiles
   once per machine; without a C compiler they run in CasADi's virtual machine.
@@ -84,6 +86,35 @@ def _vector(value, m, default, name):
     return a
 
 
+def _field_functions(field: ca.Function):
+    """``(f, ∂f/∂(x, u))`` and ``f`` of the field as Functions of (x, u)."""
+    nx, m = field.size1_in(0), field.size1_in(1)
+    sym = _sym(field)
+    xs, us = sym.sym("x", nx), sym.sym("u", m)
+    f = field(xs, us)
+    z = ca.vertcat(xs, us)
+    # MX (a network's dense layers): forward mode in all directions at once keeps each layer one
+    # matrix product; ``jacobian`` would multiply dense diagonal matrices (twice the time)
+    J = ca.jtimes(f, z, ca.DM.eye(nx + m)) if sym is ca.MX else ca.jacobian(f, z)
+    return (ca.Function("mpc_field_jac", [xs, us], [f, J]),
+            ca.Function("mpc_field", [xs, us], [f]))
+
+
+def _frozen_sensitivities(fj: ca.Function, point, u, h: float, substeps: int):
+    """(∂x⁺/∂x, ∂x⁺/∂u) of ``substeps`` RK4 steps of length h for the field linearised at
+    ``point`` (its Jacobian from ``fj``, held over the step), in closed form."""
+    nx = fj.size1_in(0)
+    _, Jxu = fj(point, u)
+    Z, I = h * Jxu[:, :nx], ca.DM.eye(nx)
+    Q = I + ca.mtimes(Z, I / 2.0 + ca.mtimes(Z, I / 6.0 + Z / 24.0))
+    P = I + ca.mtimes(Z, Q)  # I + Z + Z²/2 + Z³/6 + Z⁴/24
+    A, Ssum = I, ca.MX(nx, nx)
+    for _ in range(substeps):
+        Ssum = Ssum + A
+        A = ca.mtimes(P, A)
+    return A, ca.mtimes(Ssum, ca.mtimes(h * Q, Jxu[:, nx:]))
+
+
 def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool = False):
     """``stage(x, u) -> (x⁺, ∂x⁺/∂x, ∂x⁺/∂u)`` and ``roll(x, u) -> x⁺`` for the RK4 map.
 
@@ -104,15 +135,7 @@ def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool 
     where they give no step. It costs one Jacobian
     instead of 4 s per step: most of a solve for a network's field."""
     nx, m = field.size1_in(0), field.size1_in(1)
-    sym = _sym(field)
-    xs, us = sym.sym("x", nx), sym.sym("u", m)
-    f = field(xs, us)
-    z = ca.vertcat(xs, us)
-    # MX (a network's dense layers): forward mode in all directions at once keeps each layer one
-    # matrix product; ``jacobian`` would multiply dense diagonal matrices (twice the time)
-    J = ca.jtimes(f, z, ca.DM.eye(nx + m)) if sym is ca.MX else ca.jacobian(f, z)
-    fj = ca.Function("mpc_field_jac", [xs, us], [f, J])
-    fs = ca.Function("mpc_field", [xs, us], [f])
+    fj, fs = _field_functions(field)
     x, u = ca.MX.sym("x", nx), ca.MX.sym("u", m)
     h = dt / substeps
 
@@ -128,15 +151,7 @@ def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool 
         y_roll = rk4(y_roll)
     roll = ca.Function("mpc_roll", [x, u], [y_roll])
     if frozen:
-        _, Jxu = fj(0.5 * (x + y_roll), u)
-        Z, I = h * Jxu[:, :nx], ca.DM.eye(nx)
-        Q = I + ca.mtimes(Z, I / 2.0 + ca.mtimes(Z, I / 6.0 + Z / 24.0))
-        P = I + ca.mtimes(Z, Q)  # I + Z + Z²/2 + Z³/6 + Z⁴/24
-        A, Ssum = I, ca.MX(nx, nx)
-        for _ in range(substeps):
-            Ssum = Ssum + A
-            A = ca.mtimes(P, A)
-        B = ca.mtimes(Ssum, ca.mtimes(h * Q, Jxu[:, nx:]))
+        A, B = _frozen_sensitivities(fj, 0.5 * (x + y_roll), u, h, substeps)
         stage = ca.Function("mpc_stage", [x, u], [y_roll, A, B])
         return stage, roll
     y, S = x, ca.DM(np.hstack([np.eye(nx), np.zeros((nx, m))]))
@@ -228,7 +243,7 @@ class MPC:
 
         cfg, mod = self.config, self.model
         n, nx, m, N, ny = mod.n, self.nx, self.m, self.N, self.ny
-        frozen = cfg.sensitivities == "frozen"
+        frozen = cfg.sensitivities in ("frozen", "lifted")
         stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps, frozen=frozen)
         xs = ca.SX.sym("x", nx)
         ys = mod.output(xs[:n])
@@ -270,15 +285,16 @@ class MPC:
 
         gn = gauss_newton("mpc_gn", stage)
         # the cost alone (line search), and the predicted outputs (for plots and checks)
-        x, res, ys_all = x0, [], []
+        x, res, ys_all, xs_all = x0, [], [], [x0]
         for k in range(N):
             x = roll(x, U[:, k]) + dx
             y, _ = out(x)
             ys_all.append(y)
+            xs_all.append(x)
             res.append(sy * (y - R[:, k]))
         fc = 0.5 * ca.sumsqr(ca.vertcat(*res)) + cost_u
-        cost = ca.Function("mpc_cost", [x0, U, R, up, dx], [fc],
-                           ["x0", "U", "R", "u_prev", "d"], ["f"])
+        cost = ca.Function("mpc_cost", [x0, U, R, up, dx], [fc, ca.horzcat(*xs_all)],
+                           ["x0", "U", "R", "u_prev", "d"], ["f", "X"])
         predict = ca.Function("mpc_predict", [x0, U, dx], [ca.horzcat(*ys_all)],
                               ["x0", "U", "d"], ["Y"])
         u0 = ca.MX.sym("u0", m)
@@ -287,6 +303,35 @@ class MPC:
         if frozen:  # the exact step, for an iteration the frozen one could not make
             fns["gn_exact"] = gauss_newton("mpc_gn_exact",
                                            _stage_functions(mod.field, cfg.dt, cfg.substeps)[0])
+        if cfg.sensitivities == "lifted":
+            # the Gauss-Newton step about the last plan's predicted states, shifted by one
+            # step: no rollout, the states corrected to first order for the new measurement
+            # (δ₀ = x0 − xb₀) and the change of the disturbance estimate (dd):
+            # x_{k+1} ≈ xb_{k+1} + δ_{k+1}, δ_{k+1} = A_k δ_k + dd
+            fj, _ = _field_functions(mod.field)
+            h = cfg.dt / cfg.substeps
+            Xb, dd = ca.MX.sym("Xb", nx, N), ca.MX.sym("dd", nx)
+            delta, S, res, rows = x0 - Xb[:, 0], None, [], []
+            for k in range(N):
+                xa = Xb[:, k]
+                xb = Xb[:, k + 1] if k < N - 1 else roll(xa, U[:, k]) + dx
+                # the midpoint of the model's own step (the stage function's; xb adds dx)
+                Ak, Bk = _frozen_sensitivities(fj, 0.5 * (xa + xb - dx), U[:, k], h,
+                                               cfg.substeps)
+                delta = ca.mtimes(Ak, delta) + dd
+                S = Bk if S is None else ca.horzcat(ca.mtimes(Ak, S), Bk)
+                y, Ck = out(xb + delta)
+                res.append(sy * (y - R[:, k]))
+                row = sy * ca.mtimes(Ck, S)
+                if k < N - 1:
+                    row = ca.horzcat(row, ca.MX(ny, (N - 1 - k) * m))
+                rows.append(row)
+            r, J = ca.vertcat(*res), ca.vertcat(*rows)
+            fns["gn_lifted"] = ca.Function(
+                "mpc_gn_lifted", [x0, Xb, U, R, up, dx, dd],
+                [0.5 * ca.sumsqr(r) + cost_u, ca.mtimes(J.T, r) + grad_u,
+                 ca.mtimes(J.T, J) + hess_u],
+                ["x0", "Xb", "U", "R", "u_prev", "d", "dd"], ["f", "g", "H"])
         if cfg.codegen:
             # an MX field's matrix products compile to loops that -O3 runs three times faster
             # (SX code: straight-line, the same speed at -O1, which compiles faster)
@@ -301,7 +346,7 @@ class MPC:
         else:
             self.compile_info = {"compiled": False}
         self._gn, self._cost, self._predict = fns["gn"], fns["cost"], fns["predict"]
-        self._gn_exact = fns.get("gn_exact")
+        self._gn_exact, self._gn_lifted = fns.get("gn_exact"), fns.get("gn_lifted")
         self._step = fns["step"]
         opts = {"error_on_fail": False, **_QP_OPTIONS.get(cfg.qpsol, {})}
         self._qp = ca.conic("mpc_qp", cfg.qpsol,
@@ -335,9 +380,10 @@ class MPC:
     def _sqp_iteration(self, gn, x0, U, R, u_prev):
         """One Gauss-Newton step with a backtracking line search from U:
         (U, f, status): status None when the step was taken, else why not ("converged" at a
-        stationary point; a failure otherwise)."""
+        stationary point; a failure otherwise). ``gn(U) -> (f, g, H)``. The accepted plan's
+        predicted states are kept (``_X``, with the disturbance estimate they used)."""
         m, N = self.m, self.N
-        f, g, H = (np.asarray(v) for v in gn(x0, U, R, u_prev, self._d))
+        f, g, H = (np.asarray(v) for v in gn(U))
         f, g = float(f.item()), g.ravel()
         if not (np.isfinite(f) and np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
             return U, f, "non-finite prediction"
@@ -350,9 +396,11 @@ class MPC:
             return U, f, "converged"
         alpha = 1.0
         for _ in range(12):
-            f_new = float(self._cost(x0, U + alpha * D, R, u_prev, self._d))
+            f_new, X = self._cost(x0, U + alpha * D, R, u_prev, self._d)
+            f_new = float(f_new)
             if np.isfinite(f_new) and f_new <= f + 1e-4 * alpha * slope:
                 U = U + alpha * D
+                self._X, self._X_d = np.asarray(X), self._d.copy()
                 return U, f_new, ("converged" if alpha * np.max(np.abs(d)) <= self.config.tol
                                   else None)
             alpha *= 0.5
@@ -362,13 +410,25 @@ class MPC:
         cfg = self.config
         U = self._guess(u_prev)
         U = np.clip(U, self._lbu[:, None], self._ubu[:, None])
-        status, ok, it, f, exact = "max_iter", True, 0, np.nan, 0
+        status, ok, it, f, exact, lifted = "max_iter", True, 0, np.nan, 0, 0
+        X, self._X = (self._X if self._U is not None else None), None
         for it in range(1, cfg.max_iter + 1):  # noqa: B007 - the count is reported
-            U, f, why = self._sqp_iteration(self._gn, x0, U, R, u_prev)
+            why = "no plan"
+            if it == 1 and self._gn_lifted is not None and X is not None:
+                # about the last plan's states (shifted): no rollout before the line search
+                Xb, dd = X[:, 1:], self._d - self._X_d
+                U, f, why = self._sqp_iteration(
+                    lambda V, Xb=Xb, dd=dd: self._gn_lifted(x0, Xb, V, R, u_prev, self._d, dd),
+                    x0, U, R, u_prev)
+                lifted += why in (None, "converged")
+            if why not in (None, "converged"):
+                U, f, why = self._sqp_iteration(
+                    lambda V: self._gn(x0, V, R, u_prev, self._d), x0, U, R, u_prev)
             if why not in (None, "converged") and self._gn_exact is not None:
                 # the frozen sensitivities gave no step (far from the last plan: a transient):
                 # the same iteration with the exact ones
-                U, f, why = self._sqp_iteration(self._gn_exact, x0, U, R, u_prev)
+                U, f, why = self._sqp_iteration(
+                    lambda V: self._gn_exact(x0, V, R, u_prev, self._d), x0, U, R, u_prev)
                 exact += 1
             if why is not None:
                 status, ok = why, why == "converged"
@@ -377,6 +437,8 @@ class MPC:
         info = {"success": ok, "status": status, "iterations": it, "cost": f}
         if self._gn_exact is not None:
             info["exact_iterations"] = exact
+        if self._gn_lifted is not None:
+            info["lifted_iterations"] = lifted
         return U[:, 0].copy(), info
 
     def _guess(self, u_prev):
@@ -469,8 +531,9 @@ class MPC:
         be at rest under the first solve's ``u_prev`` (an equilibrium of the arm), so with
         ``offset_free`` the estimate starts at x − F(x, u_prev), the model's own miss there: a
         learned model's equilibrium is corrected from the first step instead of after a few."""
-        self._U = self._w = self._lam = None
+        self._U = self._w = self._lam = self._X = None
         self._d = np.zeros(self.nx)
+        self._X_d = self._d.copy()
         self._x_next = None
         self._rest = bool(rest)
 

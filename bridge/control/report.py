@@ -38,6 +38,11 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
            + (", frozen sensitivities: one Jacobian of the model per step, an iteration that "
               "gives no step redone with the exact ones (column 'iterations': how many)"
               if cfg.get("sensitivities") == "frozen" else "")
+           + (", lifted sensitivities: each step linearised about the last plan's predicted "
+              "states (no rollout before the line search), one Jacobian of the model per "
+              "step; a step that fails is redone from a rollout, then with exact "
+              "sensitivities (column 'iterations': how many of each)"
+              if cfg.get("sensitivities") == "lifted" else "")
            if cfg["solver"] == "sqp" else f" (at most {cfg['max_iter']} iterations)")
         + f"; weights: output {cfg['weight_y']:g}, input {cfg['weight_u']:g}, input change "
         f"{cfg['weight_du']:g}; input bounds: {bounds}"
@@ -90,7 +95,8 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
             fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
             its = _num(m["iterations_mean"], ".2g") + (
                 f" ({m['exact_iterations']} exact)" if cfg.get("sensitivities") == "frozen"
-                else "")
+                else f" ({m['lifted_iterations']} lifted, {m['exact_iterations']} exact)"
+                if cfg.get("sensitivities") == "lifted" else "")
             lines.append(
                 f"| {name} | {_num(m['error_rms'])} | {_num(m['error_max'])} | "
                 f"{_num(m['error_final'])} | {_num(m['effort_rms'])} | "
