@@ -153,6 +153,37 @@ def test_offset_free_mpc_removes_a_wrong_models_offset(specs, tmp_path, solver):
     assert final_d["true"] < 1e-6 and final_d["offset-free"] > 1e-2, final_d
 
 
+def test_the_disturbance_rate_follows_a_wrong_models_drifting_error(specs, tmp_path):
+    """Along a moving reference (a sinusoid of the first mass) the 30 %-stiff model's error
+    drifts; a constant estimate lags it, the alpha-beta filter (offset_free_rate) estimates its
+    change per step too and tracks more than twice as close once both have settled."""
+    wrong = tmp_path / "stiff.toml"
+    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    tm = TrueModel(specs["full"])
+    out = tip_output(tm.spec)
+    steps, cfgs, late = 120, {}, {}
+    t = np.arange(steps + 10 + 1)[1:] * 0.05
+    R = np.stack([0.2 * np.sin(1.5 * t), -0.1 + 0.1 * np.cos(1.5 * t)], axis=1)
+    for name, rate in (("constant", 0.0), ("rate", 0.053)):
+        cfgs[name] = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3,
+                               codegen=False, offset_free=0.3, offset_free_rate=rate)
+        mpc = MPC(from_true(TrueModel(str(wrong)), out), cfgs[name])
+        res = closed_loop(mpc, plant(tm, 0.05), np.zeros(2 * tm.n), R, steps,
+                          u0=np.zeros(tm.m))
+        assert metrics(res)["failures"] == 0, name
+        e = np.linalg.norm(res["y"][1:] - res["r"][1:], axis=1)
+        late[name] = float(np.sqrt(np.mean(e[60:] ** 2)))
+        if rate:
+            assert np.linalg.norm(mpc.disturbance_rate) > 0
+        else:
+            assert not np.any(mpc.disturbance_rate)
+    assert late["rate"] < 0.5 * late["constant"], late  # 2.5x closer
+    with pytest.raises(UserError, match=r"offset_free_rate: expected a gain in \[0, 1\]"):
+        MPCConfig(offset_free=0.3, offset_free_rate=-0.1)
+    with pytest.raises(UserError, match=r"needs the disturbance estimate on \(an offset-free"):
+        MPCConfig(offset_free_rate=0.05)
+
+
 def test_a_rest_start_gives_the_estimate_the_models_miss_at_once(specs, tmp_path):
     """Held at a target it rests on, the stiff model's controller moves the arm off it until
     the estimate has learnt the offset; started from the model's miss at that rest state
@@ -495,6 +526,8 @@ def test_cli_bad_inputs(specs, runs, tmp_path, capsys):
                                                           "--out", a)
     assert "--stiffness: expected a finite number >= 0" in error(specs["forced"], "--stiffness",
                                                                  -1, "--out", a)
+    err = error(specs["forced"], "--offset-free-rate", 0.05, "--out", a)
+    assert err.startswith("softpinn: error: --offset-free-rate: needs") and "offset-free" in err
     (tmp_path / "file").write_text("x")
     assert "is a file" in error(specs["forced"], "--out", tmp_path / "file")
     assert "is a file" in error(specs["forced"], "--out", tmp_path / "file" / "sub")

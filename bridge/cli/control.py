@@ -102,6 +102,12 @@ def register(subparsers) -> None:
                         "step's prediction error with this gain in [0, 1] and predict with it "
                         "(removes a learned model's steady offset; 0: off; 0.2-0.3 worked "
                         "best on task 4)")
+    m.add_argument("--offset-free-rate", dest="offset_free_rate", type=float,
+                   default=d.offset_free_rate, metavar="BETA",
+                   help="with --offset-free: estimate how the disturbance changes per step "
+                        "too (an alpha-beta filter with this second gain in [0, 1]), so that "
+                        "a learned model's error drifting along a moving reference is not "
+                        "lagged (about GAIN^2 / (2 - GAIN) damps it critically; 0: off)")
     m.add_argument("--sensitivities", choices=SENSITIVITIES, default=d.sensitivities,
                    help="the SQP's sensitivities: exact (RK4's variational equations, four "
                         "Jacobians of the model per sub-step); frozen (one Jacobian per "
@@ -154,6 +160,7 @@ def cmd_control(args) -> int:
         weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
         max_iter=args.max_iter, codegen=not args.no_codegen, offset_free=args.offset_free,
+        offset_free_rate=args.offset_free_rate,
         sensitivities=args.sensitivities,
     )
     bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)

@@ -44,6 +44,13 @@ class MPCConfig:
     that starts with the arm at rest (``MPC.reset(rest=True)``, which :func:`closed_loop` does
     when it sees the arm sit still under its first input) starts d̂ at x − F(x, u) there, what
     the model gets wrong about that equilibrium, instead of at zero.
+    ``offset_free_rate`` in [0, 1] (with ``offset_free``): the disturbance drifts where a
+    learned model's error changes along a moving reference, and a constant estimate lags
+    it; an alpha-beta filter estimates its change per step too, r̂ ← r̂ + rate·e and
+    d̂ ← d̂ + gain·e + r̂ for the miss e, so that d̂ is this step's disturbance, not the last
+    one's (the horizon still predicts with d̂ constant: extrapolating r̂ over it made the
+    true model's steps four times worse on task 5). 0 (the default): no rate; about
+    gain² / (2 − gain) damps the filter critically.
     ``sensitivities`` (SQP): ``"exact"`` differentiates every RK4 stage of the prediction
     (four Jacobians of the model per sub-step); ``"frozen"`` takes one Jacobian per control
     step, at its midpoint, and the sensitivities RK4 gives that linearisation in closed
@@ -71,6 +78,7 @@ class MPCConfig:
     tol: float = 1e-6
     codegen: bool = True
     offset_free: float = 0.0
+    offset_free_rate: float = 0.0
     sensitivities: str = "exact"
 
     def __post_init__(self):
@@ -95,6 +103,13 @@ class MPCConfig:
             raise UserError(f"offset_free: expected a gain in [0, 1], got {self.offset_free!r}")
         if self.solver not in SOLVERS:
             raise UserError(f"solver: expected one of {', '.join(SOLVERS)}, got {self.solver!r}")
+        if not (isinstance(self.offset_free_rate, int | float) and not isinstance(
+                self.offset_free_rate, bool) and 0.0 <= self.offset_free_rate <= 1.0):
+            raise UserError(f"offset_free_rate: expected a gain in [0, 1], got "
+                            f"{self.offset_free_rate!r}")
+        if self.offset_free_rate > 0 and self.offset_free == 0:
+            raise UserError("offset_free_rate: needs the disturbance estimate on (an "
+                            "offset-free gain > 0)")
         if self.sensitivities not in SENSITIVITIES:
             raise UserError(f"sensitivities: expected one of {', '.join(SENSITIVITIES)}, got "
                             f"{self.sensitivities!r}")

@@ -532,7 +532,7 @@ class MPC:
         ``offset_free`` the estimate starts at x − F(x, u_prev), the model's own miss there: a
         learned model's equilibrium is corrected from the first step instead of after a few."""
         self._U = self._w = self._lam = self._X = None
-        self._d = np.zeros(self.nx)
+        self._d, self._r = np.zeros(self.nx), np.zeros(self.nx)
         self._X_d = self._d.copy()
         self._x_next = None
         self._rest = bool(rest)
@@ -542,6 +542,11 @@ class MPC:
         """The current state-disturbance estimate d̂ (zeros unless ``offset_free`` > 0), in the
         prediction model's state (q, q̇), or (q, p) for a Hamiltonian network."""
         return self._d.copy()
+
+    @property
+    def disturbance_rate(self) -> np.ndarray:
+        """Its estimated change per step r̂ (zeros unless ``offset_free_rate`` > 0)."""
+        return self._r.copy()
 
     def solve(self, q, qd, reference, u_prev):
         """The first input of the plan from the measured (q, q̇), and what the solve did."""
@@ -561,7 +566,10 @@ class MPC:
         elif gain > 0 and self._x_next is not None:
             miss = x0 - self._x_next  # = x − F(x₋, u₋) − d̂: what the model got wrong
             if np.all(np.isfinite(miss)):
-                self._d = self._d + gain * miss
+                # an alpha-beta filter: d̂ corrected by the miss, r̂ (its change per step,
+                # with offset_free_rate) too, and d̂ carried on by r̂ to this step
+                self._r = self._r + self.config.offset_free_rate * miss
+                self._d = self._d + gain * miss + self._r
         self._rest = False
         if self.config.solver == "sqp":
             u, info = self._solve_sqp(x0, R.T, u_prev)

@@ -50,6 +50,9 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
            f"{cfg['offset_free']:g} from each step's prediction error is added to every "
            "predicted step, starting from the model's miss at the rest state where a loop "
            "starts at rest (results.json: at_rest)"
+           + (f", and its change per step estimated with gain {cfg['offset_free_rate']:g} "
+              "(an alpha-beta filter)"
+              if cfg.get("offset_free_rate") else "")
            if cfg.get("offset_free") else "") + ".",
         "",
         f"Output: {result['output']['what']} ({', '.join(result['output']['components'])}, "
