@@ -283,6 +283,8 @@ def test_frozen_sensitivities_converge_to_the_same_step(specs):
     assert m["failures"] == 0 and not m["diverged"]
     assert m["error_final"] < 1e-6, m
     np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
+    with pytest.raises(UserError, match="sensitivities: lifted is the SQP's"):
+        MPCConfig(solver="ipopt", sensitivities="lifted")
     with pytest.raises(UserError, match="sensitivities: expected one of exact, frozen, lifted"):
         MPCConfig(sensitivities="approximate")
 

@@ -113,6 +113,9 @@ class MPCConfig:
         if self.sensitivities not in SENSITIVITIES:
             raise UserError(f"sensitivities: expected one of {', '.join(SENSITIVITIES)}, got "
                             f"{self.sensitivities!r}")
+        if self.sensitivities != "exact" and self.solver != "sqp":
+            raise UserError(f"sensitivities: {self.sensitivities} is the SQP's; IPOPT uses "
+                            "exact derivatives (leave it out, or use the sqp solver)")
         if self.qpsol not in QP_SOLVERS:
             raise UserError(f"qpsol: expected one of {', '.join(QP_SOLVERS)}, got "
                             f"{self.qpsol!r}")
