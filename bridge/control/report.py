@@ -51,7 +51,8 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
            "predicted step, starting from the model's miss at the rest state where a loop "
            "starts at rest (results.json: at_rest)"
            + (f", and its change per step estimated with gain {cfg['offset_free_rate']:g} "
-              "(an alpha-beta filter)"
+              "(an alpha-beta filter: the estimate follows an error that drifts from step to "
+              "step, and stays constant over each horizon)"
               if cfg.get("offset_free_rate") else "")
            if cfg.get("offset_free") else "") + ".",
         "",
