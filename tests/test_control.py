@@ -292,9 +292,9 @@ def test_frozen_sensitivities_converge_to_the_same_step(specs):
 def test_the_lifted_step_about_the_exact_states_is_the_frozen_step():
     """Task 4's arm (nonlinear). Linearised about the plan's own predicted states (δ₀ = 0, no
     change of the disturbance), the lifted Gauss-Newton step is the frozen one: f, g, H to
-    rounding. A measurement off the prediction moves f as the rollout does, to the frozen
-    sensitivities' accuracy (the correction δ_{k+1} = A_k δ_k uses them): under a hundredth
-    of the change at either offset."""
+    rounding. A measurement off the prediction, or a new disturbance estimate, moves f as the
+    rollout does, to the frozen sensitivities' accuracy (the correction
+    δ_{k+1} = A_k δ_k + Δd̂ uses them): under a hundredth of the change at either size."""
     from softpinn.bridge.control import default_center
 
     tm = TrueModel("task4")
@@ -321,6 +321,11 @@ def test_the_lifted_step_about_the_exact_states_is_the_frozen_step():
         dx = scale * np.array([1.0, -2.0, 1.5, 3.0, -1.0, 2.0])
         moved = f(mpc._gn_lifted, x0 + dx, Xb, U, R, up, d, nothing)
         true = f(mpc._gn, x0 + dx, U, R, up, d)
+        ratios.append(abs(moved - true) / abs(true - frozen[0].item()))
+        # a new disturbance estimate: the base was predicted with d, this plan adds d + Δ
+        dd = 0.1 * dx
+        moved = f(mpc._gn_lifted, x0, Xb, U, R, up, d + dd, dd)
+        true = f(mpc._gn, x0, U, R, up, d + dd)
         ratios.append(abs(moved - true) / abs(true - frozen[0].item()))
     assert max(ratios) < 0.01, ratios
 

@@ -312,12 +312,13 @@ class MPC:
             h = cfg.dt / cfg.substeps
             Xb, dd = ca.MX.sym("Xb", nx, N), ca.MX.sym("dd", nx)
             delta, S, res, rows = x0 - Xb[:, 0], None, [], []
+            d_base = dx - dd  # the disturbance the base states were predicted with
             for k in range(N):
                 xa = Xb[:, k]
-                xb = Xb[:, k + 1] if k < N - 1 else roll(xa, U[:, k]) + dx
-                # the midpoint of the model's own step (the stage function's; xb adds dx)
-                Ak, Bk = _frozen_sensitivities(fj, 0.5 * (xa + xb - dx), U[:, k], h,
-                                               cfg.substeps)
+                # the model's own step from xa (the last one rolled, as the base would have)
+                own = Xb[:, k + 1] - d_base if k < N - 1 else roll(xa, U[:, k])
+                xb = own + d_base
+                Ak, Bk = _frozen_sensitivities(fj, 0.5 * (xa + own), U[:, k], h, cfg.substeps)
                 delta = ca.mtimes(Ak, delta) + dd
                 S = Bk if S is None else ca.horzcat(ca.mtimes(Ak, S), Bk)
                 y, Ck = out(xb + delta)
