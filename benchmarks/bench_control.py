@@ -65,6 +65,8 @@ def main() -> None:
     scratch = tempfile.TemporaryDirectory(prefix="bench-control-")
     for i, run in enumerate(args.runs):
         models.append(from_run(run, output, export_dir=f"{scratch.name}/{i}", name=f"run{i}"))
+    if not models:
+        ap.error("nothing to compare: give --runs, or leave out --no-true")
     load_before = list(os.getloadavg())
 
     controllers = {}
