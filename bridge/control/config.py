@@ -15,8 +15,9 @@ __all__ = ["MPCConfig", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
 SOLVERS = ("sqp", "ipopt")
 #: dense QP solvers for the SQP's box-constrained steps (all ship with CasADi's wheels)
 QP_SOLVERS = ("daqp", "qpoases", "osqp", "proxqp", "highs", "qrqp")
-#: how the SQP gets each step's sensitivities: RK4's exact variational equations, or one
-#: Jacobian per step held over it (several times faster for a network's field)
+#: how the SQP gets each step's sensitivities: RK4's exact variational equations, one
+#: Jacobian per step held over it (several times faster for a network's field), or that
+#: about the last plan's predicted states (one rollout per solve)
 SENSITIVITIES = ("exact", "frozen", "lifted")
 
 
