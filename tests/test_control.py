@@ -364,6 +364,25 @@ def test_a_frozen_step_that_fails_is_redone_with_exact_sensitivities(specs):
     assert "exact_iterations" not in info_exact
 
 
+def test_an_approximate_step_short_of_its_predicted_decrease_is_redone_exactly(specs):
+    """Frozen sensitivities whose Gauss-Newton model is off (here: its Hessian a fifth of the
+    true one, so the step is five times too long and the cost rises): the step is not
+    shortened until the Armijo test passes, the iteration is redone with the exact
+    sensitivities, and the input is the exact controller's."""
+    tm = TrueModel(specs["full"])
+    cfg = MPCConfig(horizon=8, dt=0.05, sensitivities="frozen", codegen=False)
+    mpc = MPC(from_true(tm, tip_output(tm.spec)), cfg)
+    good = mpc._gn
+    mpc._gn = lambda *args: (lambda f, g, H: (f, g, 0.2 * H))(*good(*args))
+    R = np.tile([0.3, -0.2], (8, 1))
+    u, info = mpc.solve(np.zeros(2), np.zeros(2), R, np.zeros(2))
+    assert info["success"] and info["exact_iterations"] == 1, info
+    exact = MPC(from_true(tm, tip_output(tm.spec)),
+                MPCConfig(horizon=8, dt=0.05, codegen=False))
+    np.testing.assert_allclose(u, exact.solve(np.zeros(2), np.zeros(2), R, np.zeros(2))[0],
+                               rtol=0, atol=1e-12)
+
+
 def test_a_qp_answer_within_the_solvers_tolerance_of_the_box_is_kept(specs):
     """daqp stops within its feasibility tolerance: a step 1e-6 outside a bound is clipped
     and used; one a tenth of the box outside is a failed QP."""
