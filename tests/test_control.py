@@ -227,7 +227,7 @@ def test_sqp_finds_the_ipopt_optimum(specs):
 
 
 def _stage_sens(field, frozen, x, u, dt=0.05, substeps=3):
-    from softpinn.bridge.control.mpc import _stage_functions
+    from softpinn.bridge.control.rk4 import _stage_functions
 
     stage, roll = _stage_functions(field, dt, substeps, frozen=frozen)
     return [np.asarray(v) for v in stage(x, u)], np.asarray(roll(x, u))
