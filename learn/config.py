@@ -63,8 +63,9 @@ class TrainConfig:
     acceleration loss (eq. 10, cheap: no RK4 step) before the pair loss (eq. 8/9; issue 18's
     fast Lagrangian training).
     ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
-    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; velocity data only; q̈ labels as
-    ``accel_labels`` says: "recorded" in the file or "differences" of the velocities) or "rollout"
+    ``input_hold`` "constant" or "linear"), "accel" (eq. 10; q̈ labels as ``accel_labels`` says:
+    "recorded" in the file or "differences" of the velocities; on momentum data ṗ from
+    differences of p, with the recorded q̇ fitting q̇ = M̂⁻¹(q) p at every sample) or "rollout"
     (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
     first state of windows of consecutive samples of one trajectory; minibatches of windows).
     ``equilibrium_weight`` / ``force_weight`` > 0 add the static-equilibrium labels of the data
@@ -119,7 +120,8 @@ class TrainConfig:
     input_hold: str = _f("constant", "loss", "the input between two samples: held or "
                          "interpolated linearly", INPUT_HOLDS)
     accel_labels: str = _f("recorded", "loss", "q̈ labels of loss 'accel': recorded in the "
-                           "file, or central differences of q̇", ACCEL_LABELS)
+                           "file, or central differences of q̇ (momentum data: ṗ from "
+                           "differences of p, the only choice)", ACCEL_LABELS)
     momenta: str = _f("auto", "loss", "momenta p of a Hamiltonian network: from the data file "
                       "(eq. 9), or from the velocities, p = M(q) qd with the network's own mass "
                       "matrix (eq. 8 on q, qd; learn/velocity.py); auto: data when the file's "
@@ -256,10 +258,11 @@ class TrainConfig:
             if getattr(self, name) > 0 and self.model.kind == "blackbox":
                 raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "
                                 "model; a blackbox model has none (leave it 0)")
-        if self.loss == "accel" and self.model.state_kind != "velocity":
+        if (self.loss == "accel" and self.model.state_kind != "velocity"
+                and self.accel_labels != "differences"):
             raise UserError(
-                "loss: 'accel' (eq. 10) needs velocity-state data (q̈ is stored, ṗ is not); "
-                f"a {self.model.kind} model uses the {self.model.state_kind} state"
+                "loss: 'accel' (eq. 10) on momentum data needs accel_labels 'differences' "
+                "(the file stores q̇ but no ṗ; ṗ is then differenced from p)"
             )
 
     def _check_momenta(self):

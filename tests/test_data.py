@@ -198,6 +198,27 @@ def test_difference_accelerations_converge_at_second_order(tmp_path):
                                       data.qdd[data.indices(0)[:-1]])
     orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(orders > 1.8), (errors, orders)
+
+
+def test_difference_momenta_converge_at_second_order(tmp_path):
+    """ṗ from central differences of p (eq. 10's labels on momentum data) against M q̈ (the
+    mass-spring-damper's M is constant): error O(dt²); the pairs carry (q̇ recorded, ṗ)."""
+    from softpinn.learn.data import difference_momenta
+
+    M = msd_matrices()[0]
+    errors = []
+    for rate in (50.0, 100.0, 200.0):
+        path = make_dataset(tmp_path / f"msd{rate:g}.npz", trajectories=2, duration=2.0,
+                            rate=rate)
+        data = load_dataset(path)
+        fd = difference_momenta(data)
+        errors.append(np.max(np.abs(fd - data.qdd @ M.T)))
+        pairs = make_pairs(data, [0, 1], state="momentum", accel="differences")
+        firsts = np.r_[data.indices(0)[:-1], data.indices(1)[:-1]]
+        np.testing.assert_array_equal(pairs.xdot0, np.c_[data.qd, fd][firsts])
+        assert make_pairs(data, [0], state="momentum").xdot0 is None
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 1.8), (errors, orders)
     assert errors[-1] < 1e-3 * np.max(np.abs(data.qdd))
     with pytest.raises(UserError, match=r"accel labels must be one of \['recorded', 'diff"):
         make_pairs(data, [0], accel="smoothed")

@@ -347,7 +347,7 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
     h = res.members[0].history  # multi-step loss over windows of 5 samples
     assert h[-1]["test_loss"] < h[0]["test_loss"] / 2
     assert res.metrics["pairs"]["train"] == 4 * (81 - 4)  # windows inside 4 trajectories
-    with pytest.raises(UserError, match="needs velocity-state data"):
+    with pytest.raises(UserError, match="on momentum data needs accel_labels 'differences'"):
         blackbox_train_config(loss="accel", model=tiny_model_config("hamiltonian"))
 
 
