@@ -10,7 +10,7 @@ were lifted or redone exactly, and the solve times (median, mean, 95th percentil
 over every round), with the machine and its load average before and after.
 
 Usage: ``python benchmarks/bench_control.py [--model task5] [--runs RUN ...]
-[--offset-free 0.3] [--rounds 2] [--modes exact frozen lifted]``
+[--offset-free 0.3] [--offset-free-rate 0] [--rounds 2] [--modes exact frozen lifted]``
 """
 
 from __future__ import annotations
@@ -29,6 +29,7 @@ def main() -> None:
     ap.add_argument("--model", default="task5")
     ap.add_argument("--runs", nargs="*", default=[])
     ap.add_argument("--offset-free", type=float, default=0.3)
+    ap.add_argument("--offset-free-rate", type=float, default=0.0)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--modes", nargs="+", default=["exact", "frozen", "lifted"])
     ap.add_argument("--no-true", action="store_true")
@@ -73,6 +74,7 @@ def main() -> None:
     for pm in models:
         for mode in args.modes:
             cfg = MPCConfig(sensitivities=mode, offset_free=args.offset_free,
+                            offset_free_rate=args.offset_free_rate,
                             u_min=tuple(lo), u_max=tuple(hi))
             t0 = time.perf_counter()
             mpc = MPC(pm, cfg, operating_point=(qc, np.zeros(spec.n), uc))
@@ -89,6 +91,7 @@ def main() -> None:
                 runs[key][rname].append(closed_loop(mpc, plant_fn, ref["x0"], ref["R"],
                                                     ref["steps"], u0=ref["u0"]))
     out = {"model": spec.name, "runs": args.runs, "offset_free": args.offset_free,
+           "offset_free_rate": args.offset_free_rate,
            "rounds": args.rounds, "machine": machine(), "load_before": load_before,
            "load_after": list(os.getloadavg()), "results": {}}
     for (name, mode), (mpc, build) in controllers.items():
