@@ -478,6 +478,44 @@ def test_learned_models_close_the_loop(specs, runs, tmp_path):
     assert "| hamiltonian |" in report and "![paths_circle](figures/paths_circle.png)" in report
 
 
+def test_leaving_the_training_data_is_found_and_reported(specs, runs, tmp_path):
+    """outside_data counts the steps whose q leaves the range by more than the margin; the
+    comparison checks every learned controller's loop against its training data's range and
+    says so in the CLI line and the report."""
+    from softpinn.bridge.control.compare import _line
+    from softpinn.bridge.control.loop import outside_data
+    from softpinn.bridge.control.report import _outside_lines
+
+    rng = {"min": [0.0, -1.0], "max": [1.0, 1.0]}
+    x = np.array([[0.5, 0.0, 9.0, 9.0],     # the start: not counted
+                  [1.04, 0.0, 0.0, 0.0],    # within the 5 % margin
+                  [1.06, 0.0, 0.0, 0.0],    # q1 out
+                  [0.5, -1.2, 0.0, 0.0],    # q2 out
+                  [0.5, 0.0, 0.0, 0.0]])
+    got = outside_data(x, rng, 0.1, ["a", "b"])
+    assert got == {"steps": 2, "first_s": pytest.approx(0.2), "coordinates": ["a", "b"],
+                   "margin": 0.05}
+    assert outside_data(x[:2], rng, 0.1)["first_s"] is None
+    # a loop that leaves: in the CLI line and the report's sentence
+    met = {"error_rms": 1e-3, "error_max": 2e-3, "solve_ms_mean": 1.0, "solve_ms_max": 2.0,
+           "failures": 0, "diverged": False, "steps": 4, "outside_data": got}
+    assert "left its training data's configurations at 0.20 s (2 of 4 steps: a, b)" in \
+        _line("step", "hamiltonian", met, "m")
+    assert "hamiltonian from 0.20 s, 2 steps (a, b)" in _outside_lines({"hamiltonian": met})[0]
+    assert _outside_lines({"true": {}}) == []
+    # the comparison: learned controllers are checked, the true model is not
+    cfg = MPCConfig(horizon=8, dt=0.05, u_min=(-5.0,), u_max=(5.0,), codegen=False)
+    result = compare(specs["forced"], [runs("lagrangian")], tmp_path / "c", config=cfg,
+                     duration=0.3, references=("step",), include_linear=False)
+    per = result["results"]["step"]
+    assert "outside_data" not in per["true"]
+    away = per["lagrangian"]["outside_data"]
+    assert away["steps"] >= 0 and set(away) == {"steps", "first_s", "coordinates", "margin"}
+    report = (tmp_path / "c" / "report.md").read_text()
+    assert ("stayed within its training data" in report) == (away["steps"] == 0)
+    assert ("**Outside the training data**" in report) == (away["steps"] > 0)
+
+
 def test_hamiltonian_state_is_momentum(specs, runs, tmp_path):
     from softpinn.learn import load_run
 

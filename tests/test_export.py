@@ -146,6 +146,13 @@ def test_export_agrees_with_jax(kind, runs, tmp_path):
     assert saved["coordinates"] == ["q1", "q2"] and len(saved["run"]["sha256"]) == 64
     assert saved["training"]["dataset"]["sha256"] == run.info["dataset"]["sha256"]
     assert saved["state_kind"] == run.model.state_kind
+    # the configurations the model was fitted on: the training trajectories' q range
+    with np.load(run.info["dataset"]["path"]) as z:
+        q = z["q"][np.isin(z["traj"], run.info["split"]["train"])]
+    rng = saved["training"]["q_range"]
+    assert rng["trajectories"] == run.info["split"]["train"]
+    np.testing.assert_array_equal(rng["min"], q.min(axis=0))
+    np.testing.assert_array_equal(rng["max"], q.max(axis=0))
 
 
 @pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian", "blackbox"])

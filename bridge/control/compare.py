@@ -33,7 +33,7 @@ import numpy as np
 
 from ..errors import UserError
 from ..outputs import to_jsonable
-from .loop import closed_loop, metrics, plant
+from .loop import closed_loop, metrics, outside_data, plant
 from .models import (
     PredictionModel,
     from_run,
@@ -253,6 +253,9 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
             res = closed_loop(mpc, plant_fn, ref["x0"], ref["R"], ref["steps"], u0=ref["u0"],
                               progress=progress)
             met = metrics(res)
+            if pm.info.get("q_range"):  # a learned model: did the arm leave its data?
+                met["outside_data"] = outside_data(res["x"], pm.info["q_range"], config.dt,
+                                                   spec.coordinate_names)
             results[rname][pm.name] = met
             traces[rname][pm.name] = res
             say(_line(rname, pm.name, met, unit))
@@ -352,9 +355,13 @@ def _line(ref: str, name: str, met: dict, unit: str) -> str:
 
     fail = f", {met['failures']} failed" if met["failures"] else ""
     div = ", DIVERGED" if met["diverged"] else ""
+    away = met.get("outside_data") or {}
+    left = (f"; left its training data's configurations at {away['first_s']:.2f} s "
+            f"({away['steps']} of {met['steps']} steps: {', '.join(away['coordinates'])})"
+            if away.get("steps") else "")
     return (f"{ref} / {name}: error RMS {num(met['error_rms'], '.3g')} {unit}, max "
             f"{num(met['error_max'], '.3g')} {unit}; solve {num(met['solve_ms_mean'], '.2f')} ms "
-            f"mean, {num(met['solve_ms_max'], '.2f')} ms max{fail}{div}")
+            f"mean, {num(met['solve_ms_max'], '.2f')} ms max{fail}{div}{left}")
 
 
 def _write_json(path: Path, obj) -> Path:

@@ -15,7 +15,11 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["plant", "closed_loop", "metrics"]
+__all__ = ["plant", "closed_loop", "metrics", "outside_data"]
+
+#: How far past its training data's range (a fraction of the range) a coordinate may go before
+#: :func:`outside_data` says the arm left the configurations its model was fitted on.
+DATA_MARGIN = 0.05
 
 
 def plant(true_model, dt: float, *, rtol: float = 1e-8, atol: float = 1e-10) -> ca.Function:
@@ -126,3 +130,22 @@ def metrics(result: dict) -> dict:
         "solve_ms_p95": stat(lambda a: np.percentile(a, 95), s),
         "solve_ms_max": stat(np.max, s),
     }
+
+
+def outside_data(x: np.ndarray, q_range: dict, dt: float, names=None,
+                 margin: float = DATA_MARGIN) -> dict:
+    """Where the closed loop's configurations q (the first n columns of ``x``, one row per
+    step, the start first) left ``q_range`` ({"min": [...], "max": [...]}, the training
+    trajectories' q of a learned model) by more than ``margin`` of each coordinate's range:
+    ``steps`` (how many steps after the start), ``first_s`` (the first such time, None if
+    none) and the ``coordinates`` that did (their ``names`` when given, else indices)."""
+    lo, hi = (np.asarray(q_range[k], float) for k in ("min", "max"))
+    pad = margin * np.maximum(hi - lo, 0.0)
+    q = np.asarray(x, float)[1:, : lo.size]
+    out = (q < lo - pad) | (q > hi + pad)
+    rows = np.flatnonzero(out.any(axis=1))
+    cols = np.flatnonzero(out.any(axis=0))
+    return {"steps": int(rows.size),
+            "first_s": float((rows[0] + 1) * dt) if rows.size else None,
+            "coordinates": [names[i] if names is not None else int(i) for i in cols],
+            "margin": margin}

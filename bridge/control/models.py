@@ -113,6 +113,7 @@ def from_export(directory, output: ca.Function, name: str | None = None) -> Pred
             "export": str(directory), "run": meta.get("run", {}).get("path"),
             "seeds": meta.get("ensemble", {}).get("seeds"),
             "data_spec": meta.get("training", {}).get("data_spec"),
+            "q_range": meta.get("training", {}).get("q_range"),
             "field": "MX from the run's weights" if rebuilt is not None else "SX"}
     return PredictionModel(name or meta["kind"], n, m, rebuilt or field_fn, to_state, output,
                            info)

@@ -12,6 +12,25 @@ def _num(v, fmt=".3g"):
     return "n/a" if v is None else format(v, fmt)
 
 
+def _outside_lines(per: dict) -> list[str]:
+    """A sentence on the learned models whose arm left the configurations of their training
+    data (none when no controller has a data range)."""
+    checked = {name: m["outside_data"] for name, m in per.items() if m.get("outside_data")}
+    if not checked:
+        return []
+    margin = next(iter(checked.values()))["margin"]
+    left = [f"{name} from {o['first_s']:.2f} s, {o['steps']} steps ({', '.join(o['coordinates'])})"
+            for name, o in checked.items() if o["steps"]]
+    if not left:
+        return [f"Every learned model's arm stayed within its training data's configurations "
+                f"(each q within the range of its training trajectories, ± {100 * margin:g} % "
+                "of that range).", ""]
+    return ["**Outside the training data**: the arm left the configurations the model was "
+            f"trained on (some q beyond its training trajectories' range by more than "
+            f"{100 * margin:g} % of that range), where its predictions are not backed by data: "
+            + "; ".join(left) + ".", ""]
+
+
 def write_report(path, result: dict, figures: list[str]) -> Path:
     """Write the report for ``result`` (what :func:`~.compare.compare` returns) to ``path``."""
     path = Path(path)
@@ -107,6 +126,7 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
                 f"{_num(m['effort_rate_rms'])} | {fail} | {its} | "
                 f"{_num(m['solve_ms_mean'], '.2f')} | {_num(m['solve_ms_p95'], '.2f')} | "
                 f"{_num(m['solve_ms_max'], '.2f')} |")
+        lines += ["", *_outside_lines(per)]
         lines.append("")
         for f in figures:
             if f.endswith(f"_{rname}.png"):

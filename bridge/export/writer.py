@@ -117,6 +117,28 @@ def _dataset_meta(info: dict, run: Path) -> dict | None:
     return None
 
 
+def _q_range(info: dict, run: Path) -> dict | None:
+    """Per coordinate the least and greatest q of the run's training trajectories (the
+    configurations its model was fitted on), when the dataset file can still be found."""
+    path = (info.get("dataset") or {}).get("path")
+    train = (info.get("split") or {}).get("train")
+    if not path or not train:
+        return None
+    for cand in (Path(path), run / path):
+        if cand.is_file():
+            try:
+                with np.load(cand, allow_pickle=False) as z:
+                    q, traj = np.asarray(z["q"], float), np.asarray(z["traj"])
+            except (OSError, KeyError, ValueError):
+                return None
+            q = q[np.isin(traj, np.asarray(train))]
+            if q.ndim != 2 or not len(q):
+                return None
+            return {"min": q.min(axis=0).tolist(), "max": q.max(axis=0).tolist(),
+                    "trajectories": [int(t) for t in train]}
+    return None
+
+
 def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dict:
     coords = (meta or {}).get("coordinates")
     if not (isinstance(coords, list) and len(coords) == n):
@@ -224,6 +246,7 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
             "dataset": top.get("dataset"),
             "data_spec": (meta or {}).get("spec", {}).get("name") if meta else None,
             "split": top.get("split"),
+            "q_range": _q_range(top, run),
             "pairs": top.get("pairs"),
             "model": top.get("model"),
             "train": top.get("train"),
