@@ -139,13 +139,18 @@ def outside_data(x: np.ndarray, q_range: dict, dt: float, names=None,
     trajectories' q of a learned model) by more than ``margin`` of each coordinate's range:
     ``steps`` (how many steps after the start), ``first_s`` (the first such time, None if
     none) and the ``coordinates`` that did (their ``names`` when given, else indices)."""
-    lo, hi = (np.asarray(q_range[k], float) for k in ("min", "max"))
-    pad = margin * np.maximum(hi - lo, 0.0)
-    q = np.asarray(x, float)[1:, : lo.size]
-    out = (q < lo - pad) | (q > hi + pad)
+    out = outside_mask(x, q_range, margin)[1:]
     rows = np.flatnonzero(out.any(axis=1))
     cols = np.flatnonzero(out.any(axis=0))
     return {"steps": int(rows.size),
             "first_s": float((rows[0] + 1) * dt) if rows.size else None,
             "coordinates": [names[i] if names is not None else int(i) for i in cols],
             "margin": margin}
+
+
+def outside_mask(x: np.ndarray, q_range: dict, margin: float = DATA_MARGIN) -> np.ndarray:
+    """(rows of ``x``, n) booleans: q beyond ``q_range`` by more than ``margin`` of its range."""
+    lo, hi = (np.asarray(q_range[k], float) for k in ("min", "max"))
+    pad = margin * np.maximum(hi - lo, 0.0)
+    q = np.asarray(x, float)[:, : lo.size]
+    return (q < lo - pad) | (q > hi + pad)

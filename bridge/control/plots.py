@@ -5,7 +5,8 @@ Per reference ``<ref>``, in the figures folder:
 * ``paths_<ref>.png``: the output's path (the tip in 3-D for a spatial arm, in the plane for a
   planar one, q's first two coordinates otherwise), reference dashed;
 * ``tracking_<ref>.png``: each output component over time with the reference, and the
-  tracking error ‖y - r‖ over time (log scale);
+  tracking error ‖y - r‖ over time (log scale; × where a learned model's arm is outside the
+  configurations of its training data);
 * ``inputs_<ref>.png``: each input over time;
 * ``solve_<ref>.png``: the solve time of each control step, with the step length (the real-time
   budget) as a line.
@@ -18,6 +19,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+
+from .loop import outside_mask
 
 __all__ = ["write_figures"]
 
@@ -152,10 +155,24 @@ def write_figures(folder, spec, refs: dict, traces: dict, result: dict) -> list[
             axes[j].set_ylabel(f"{comps[j]} [{unit}]")
             axes[j].set_ylim(*_panel_limits(r_full, j, [res["y"] for res in per.values()]))
         axes[0].legend(fontsize=8, ncol=2)
+        marked = False
         for name, res in per.items():
             e = np.linalg.norm(res["y"] - res["r"], axis=1)
-            axes[-1].semilogy(np.arange(len(e))[1:] * dt, np.maximum(e[1:], 1e-12),
-                              color=colors[name], lw=1.1, label=name)
+            t_e = np.arange(len(e)) * dt
+            axes[-1].semilogy(t_e[1:], np.maximum(e[1:], 1e-12), color=colors[name], lw=1.1,
+                              label=name)
+            q_range = result["controllers"].get(name, {}).get("q_range")
+            if q_range:  # where a learned model's arm is outside its training data
+                away = outside_mask(res["x"], q_range).any(axis=1)
+                away[0] = False
+                if away.any():
+                    axes[-1].semilogy(t_e[away], np.maximum(e[away], 1e-12), "x",
+                                      color=colors[name], ms=3.5, mew=0.8,
+                                      label=None if marked else
+                                      "outside its training data's q")
+                    marked = True
+        if marked:
+            axes[-1].legend(fontsize=7, loc="best")
         axes[-1].set_ylabel(f"‖y - r‖ [{unit}]")
         axes[-1].set_xlabel("time [s]")
         axes[0].set_title(f"{title}: outputs and tracking error")
