@@ -102,41 +102,28 @@ def _checksum(run_dirs: list[Path]) -> str:
     return h.hexdigest()
 
 
-def _dataset_meta(info: dict, run: Path) -> dict | None:
-    """The ``meta`` block of the run's dataset file, when that file can still be found."""
+def _dataset_facts(info: dict, run: Path) -> tuple[dict | None, dict | None]:
+    """From the run's dataset file, when it can still be found (one read): its ``meta`` block,
+    and per coordinate the least and greatest q of the run's training trajectories (the
+    configurations its model was fitted on; None without a split)."""
     path = (info.get("dataset") or {}).get("path")
     if not path:
-        return None
-    for cand in (Path(path), run / path):
-        if cand.is_file():
-            try:
-                with np.load(cand, allow_pickle=False) as z:
-                    return json.loads(str(z["meta"].item()))
-            except (OSError, KeyError, ValueError):
-                return None
-    return None
-
-
-def _q_range(info: dict, run: Path) -> dict | None:
-    """Per coordinate the least and greatest q of the run's training trajectories (the
-    configurations its model was fitted on), when the dataset file can still be found."""
-    path = (info.get("dataset") or {}).get("path")
+        return None, None
+    cand = next((c for c in (Path(path), run / path) if c.is_file()), None)
+    if cand is None:
+        return None, None
+    try:
+        with np.load(cand, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"].item()))
+            q, traj = np.asarray(z["q"], float), np.asarray(z["traj"])
+    except (OSError, KeyError, ValueError):
+        return None, None
     train = (info.get("split") or {}).get("train")
-    if not path or not train:
-        return None
-    for cand in (Path(path), run / path):
-        if cand.is_file():
-            try:
-                with np.load(cand, allow_pickle=False) as z:
-                    q, traj = np.asarray(z["q"], float), np.asarray(z["traj"])
-            except (OSError, KeyError, ValueError):
-                return None
-            q = q[np.isin(traj, np.asarray(train))]
-            if q.ndim != 2 or not len(q):
-                return None
-            return {"min": q.min(axis=0).tolist(), "max": q.max(axis=0).tolist(),
-                    "trajectories": [int(t) for t in train]}
-    return None
+    q = q[np.isin(traj, np.asarray(train))] if train else q[:0]
+    if q.ndim != 2 or not len(q):
+        return meta, None
+    return meta, {"min": q.min(axis=0).tolist(), "max": q.max(axis=0).tolist(),
+                  "trajectories": [int(t) for t in train]}
 
 
 def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dict:
@@ -215,8 +202,8 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
 
     first = params[0]
     n, m = first["n"], first["m"]
-    meta = _dataset_meta(info, run)
     top = loaded[0].info
+    meta, q_range = _dataset_facts(top, run)
     from softpinn import __version__
 
     result = ExportResult({
@@ -246,7 +233,7 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
             "dataset": top.get("dataset"),
             "data_spec": (meta or {}).get("spec", {}).get("name") if meta else None,
             "split": top.get("split"),
-            "q_range": _q_range(top, run),
+            "q_range": q_range,
             "pairs": top.get("pairs"),
             "model": top.get("model"),
             "train": top.get("train"),
