@@ -274,15 +274,21 @@ def test_frozen_sensitivities_are_second_order_on_a_nonlinear_arm():
     assert 3.2 < a20 / a10 < 4.5 and 3.2 < b20 / b10 < 4.5, errors  # second order in h
 
 
-def test_frozen_sensitivities_converge_to_the_same_step(specs):
+@pytest.mark.parametrize("mode", ["frozen", "lifted"])
+def test_approximate_sensitivities_converge_to_the_same_step(specs, mode):
     """An inexact-Jacobian SQP: the same closed-loop target, reached as closely."""
     cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3,
-                    sensitivities="frozen", codegen=False)
+                    sensitivities=mode, codegen=False)
     _, q_star, u_star, res = _loop(specs["full"], [0.3, -0.2], steps=40, config=cfg)
     m = metrics(res)
     assert m["failures"] == 0 and not m["diverged"]
     assert m["error_final"] < 1e-6, m
+    if mode == "lifted":
+        assert m["lifted_iterations"] >= 30, m  # all but the first and the transient's
     np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
+
+
+def test_sensitivities_refused_where_they_do_not_apply():
     with pytest.raises(UserError, match="sensitivities: lifted is the SQP's"):
         MPCConfig(solver="ipopt", sensitivities="lifted")
     with pytest.raises(UserError, match="sensitivities: expected one of exact, frozen, lifted"):
@@ -328,17 +334,6 @@ def test_the_lifted_step_about_the_exact_states_is_the_frozen_step():
         true = f(mpc._gn, x0, U, R, up, d + dd)
         ratios.append(abs(moved - true) / abs(true - frozen[0].item()))
     assert max(ratios) < 0.01, ratios
-
-
-def test_lifted_sensitivities_converge_to_the_same_step(specs):
-    cfg = MPCConfig(horizon=10, dt=0.05, weight_y=1e2, weight_du=1e-3,
-                    sensitivities="lifted", codegen=False)
-    _, q_star, u_star, res = _loop(specs["full"], [0.3, -0.2], steps=40, config=cfg)
-    m = metrics(res)
-    assert m["failures"] == 0 and not m["diverged"]
-    assert m["error_final"] < 1e-6, m
-    assert m["lifted_iterations"] >= 30, m  # all but the first and the transient's
-    np.testing.assert_allclose(res["u"][-1], u_star, atol=1e-4)
 
 
 def test_a_frozen_step_that_fails_is_redone_with_exact_sensitivities(specs):

@@ -178,16 +178,26 @@ def test_mass_scale_is_the_median_mass_or_inverse_mass(msd_file):
         mass_scale(data, "blackbox")
 
 
+def _msd_at_rates(tmp_path, rates=(50.0, 100.0, 200.0)):
+    """The mass-spring-damper's two trajectories of 2 s sampled at each rate, halving dt."""
+    for rate in rates:
+        yield load_dataset(make_dataset(tmp_path / f"msd{rate:g}.npz", trajectories=2,
+                                        duration=2.0, rate=rate))
+
+
+def _assert_second_order(errors):
+    """Errors at halving dt fall by about 4 each time."""
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(orders > 1.8), (errors, orders)
+
+
 def test_difference_accelerations_converge_at_second_order(tmp_path):
     """Central differences of q̇ against the recorded q̈: error O(dt²) inside and at the ends,
     never mixing two trajectories."""
     from softpinn.learn.data import difference_accelerations
 
     errors = []
-    for rate in (50.0, 100.0, 200.0):
-        path = make_dataset(tmp_path / f"msd{rate:g}.npz", trajectories=2, duration=2.0,
-                            rate=rate)
-        data = load_dataset(path)
+    for data in _msd_at_rates(tmp_path):
         fd = difference_accelerations(data)
         errors.append(np.max(np.abs(fd - data.qdd)))
         # the pairs' ẋ carries the estimate; "recorded" keeps the file's q̈
@@ -196,8 +206,7 @@ def test_difference_accelerations_converge_at_second_order(tmp_path):
         np.testing.assert_array_equal(pairs.xdot0[:, 2:], fd[firsts])
         np.testing.assert_array_equal(make_pairs(data, [0]).xdot0[:, 2:],
                                       data.qdd[data.indices(0)[:-1]])
-    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
-    assert np.all(orders > 1.8), (errors, orders)
+    _assert_second_order(errors)
 
 
 def test_difference_momenta_converge_at_second_order(tmp_path):
@@ -207,18 +216,14 @@ def test_difference_momenta_converge_at_second_order(tmp_path):
 
     M = msd_matrices()[0]
     errors = []
-    for rate in (50.0, 100.0, 200.0):
-        path = make_dataset(tmp_path / f"msd{rate:g}.npz", trajectories=2, duration=2.0,
-                            rate=rate)
-        data = load_dataset(path)
+    for data in _msd_at_rates(tmp_path):
         fd = difference_momenta(data)
         errors.append(np.max(np.abs(fd - data.qdd @ M.T)))
         pairs = make_pairs(data, [0, 1], state="momentum", accel="differences")
         firsts = np.r_[data.indices(0)[:-1], data.indices(1)[:-1]]
         np.testing.assert_array_equal(pairs.xdot0, np.c_[data.qd, fd][firsts])
         assert make_pairs(data, [0], state="momentum").xdot0 is None
-    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
-    assert np.all(orders > 1.8), (errors, orders)
+    _assert_second_order(errors)
     assert errors[-1] < 1e-3 * np.max(np.abs(data.qdd))
     with pytest.raises(UserError, match=r"accel labels must be one of \['recorded', 'diff"):
         make_pairs(data, [0], accel="smoothed")
