@@ -28,8 +28,9 @@ def test_the_full_plan_follows_the_preset():
     # RK4 sub-steps no longer than max_step = 0.1 s: the paper's 0.2 s step takes two
     assert dict(plan.substeps) == {"5Hz": 2, "20Hz": 1, "50Hz": 1, "100Hz": 1}
     assert plan.preprocessing["5Hz"] == {"none": "none", "movmean": "movmean:3",
-                                         "polyfit": "polyfit:3:5", "savgol": "savgol:5:2"}
+                                         "polyfit": "polyfit:3:5", "savgol": "savgol:5:3"}
     assert plan.preprocessing["100Hz"]["movmean"] == "movmean:20"  # 0.2 s, as 20 at 100 Hz
+    assert plan.preprocessing["100Hz"]["savgol"] == "savgol:81:3"  # cubics over 0.8 s
     assert plan.models["lagrangian"]["mass"] == (32, 2)  # at least MIN_WIDTH wide
     assert plan.models["blackbox"]["hidden"] == (60, 3)  # Table IV's 60*3
     assert plan.samples == 6000
