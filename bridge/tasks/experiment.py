@@ -65,9 +65,9 @@ RESET_EVERY = 3.0
 #: and piecewise polynomial fits (polyfit), Savitzky-Golay, and none. Savitzky-Golay is of degree
 #: 3: at a window's centre a fit of even degree 2k has the slope of degree 2k - 1, so quadratics
 #: give the velocities of straight lines, which at 5 Hz (savgol:5:2, 1 s) lost 29 % of a 0.6 Hz
-#: swing and left the velocities 0.120 rad/s rms off the true arm's (0.056 raw, 0.054 with
-#: cubics); cubics over 0.8 s instead of quadratics over 0.4 s gave both networks lower 5 s
-#: errors at 5, 20 and 100 Hz (RESULTS.md, 27 Nov 2026).
+#: swing's velocity and were 0.120 rad/s rms off the true arm's (0.056 raw, 0.054 with cubics);
+#: cubics over 0.8 s instead of quadratics over 0.4 s gave both networks lower 5 s errors at
+#: every rate (RESULTS.md, 27 Nov 2026).
 PREPROCESSING: dict[str, dict[str, Any]] = {
     "none": {},
     "movmean": {"window_s": 0.2, "min": 3},
