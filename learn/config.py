@@ -14,6 +14,7 @@ from typing import Any
 
 from .data import ACCEL_LABELS
 from .errors import UserError
+from .losses import ACCEL_SPACES
 from .models import ModelConfig
 from .velocity import MOMENTA
 
@@ -122,6 +123,10 @@ class TrainConfig:
     accel_labels: str = _f("recorded", "loss", "q̈ labels of loss 'accel': recorded in the "
                            "file, or central differences of q̇ (momentum data: ṗ from "
                            "differences of p, the only choice)", ACCEL_LABELS)
+    accel_space: str = _f("acceleration", "loss", "where loss 'accel' compares: q̈ - q̂̈ "
+                          "(acceleration), or M̂(q) (q̈ - q̂̈) (force: the residual of eq. 4, "
+                          "linear in the networks' M, D, G; a physics model on (q, q̇) with "
+                          "--known-input)", ACCEL_SPACES)
     momenta: str = _f("auto", "loss", "momenta p of a Hamiltonian network: from the data file "
                       "(eq. 9), or from the velocities, p = M(q) qd with the network's own mass "
                       "matrix (eq. 8 on q, qd; learn/velocity.py); auto: data when the file's "
@@ -220,6 +225,7 @@ class TrainConfig:
             ("ensemble", ENSEMBLE_MODES),
             ("input_hold", INPUT_HOLDS),
             ("accel_labels", ACCEL_LABELS),
+            ("accel_space", ACCEL_SPACES),
             ("momenta", MOMENTA),
         ):
             if getattr(self, name) not in allowed:
@@ -254,6 +260,7 @@ class TrainConfig:
                 f"accel_labels: {self.accel_labels!r} is for loss 'accel', not {self.loss!r}"
             )
         self._check_momenta()
+        self._check_accel_space()
         for name in ("equilibrium_weight", "force_weight"):
             if getattr(self, name) > 0 and self.model.kind == "blackbox":
                 raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "
@@ -264,6 +271,25 @@ class TrainConfig:
                 "loss: 'accel' (eq. 10) on momentum data needs accel_labels 'differences' "
                 "(the file stores q̇ but no ṗ; ṗ is then differenced from p)"
             )
+
+    def _check_accel_space(self):
+        """``accel_space`` "force" (eq. 4's residual, M̂ q̈ + Ĉ q̇ + D̂ q̇ + Ĝ - A u): loss
+        "accel", a physics network on (q, q̇), and a known A, without which the residual is
+        smallest for a vanishing model."""
+        if self.accel_space == "acceleration":
+            return
+        model = self.model
+        if self.loss != "accel":
+            raise UserError(f"accel_space: 'force' is for loss 'accel', not {self.loss!r}")
+        deferred = model.kind == "hamiltonian" and self.momenta == "auto"  # resolved per file
+        if model.kind not in ("lagrangian", "hamiltonian") or (
+                model.state_kind != "velocity" and not deferred):
+            raise UserError("accel_space: 'force' needs a lagrangian network, or a hamiltonian "
+                            "one on velocities (--momenta velocity)")
+        if model.input_form != "known":
+            raise UserError("accel_space: 'force' needs a known input matrix (--known-input): "
+                            "with A learned the force residual is smallest for a model of "
+                            "vanishing M, D, G and A")
 
     def _check_momenta(self):
         """``momenta`` against the model: Hamiltonian networks only; "data" / "velocity" set

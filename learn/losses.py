@@ -111,8 +111,27 @@ def pair_loss(model, pairs: Pairs, *, weight=1.0, substeps=1, input_hold="consta
     )
 
 
-def accel_errors(model, pairs: Pairs):
-    """Per-sample ‖ẋ₀ - f(x₀, u₀)‖² (eq. 10), shape (B,); needs ``pairs.xdot0``."""
+#: Where eq. 10 compares: "acceleration" (‖q̈ - q̂̈‖²) or "force" (‖M̂(q) (q̈ - q̂̈)‖², the
+#: residual M̂ q̈ + Ĉ q̇ + D̂ q̇ + Ĝ - A u of eq. 4 with the labels' q̈; velocity-state physics
+#: models with a known A).
+ACCEL_SPACES = ("acceleration", "force")
+
+
+def _mass_times(model, q, v):
+    """M̂(q) v: L Lᵀ v for a Lagrangian network (M = L Lᵀ), a Cholesky solve for a Hamiltonian
+    one (M⁻¹ = L Lᵀ)."""
+    from .linalg import cho_solve
+
+    L = model.mass.factor(q)
+    if model.config.kind == "hamiltonian":
+        return cho_solve(L, v)
+    return L @ (L.T @ v)
+
+
+def accel_errors(model, pairs: Pairs, space: str = "acceleration"):
+    """Per-sample ‖ẋ₀ - f(x₀, u₀)‖² (eq. 10), shape (B,); needs ``pairs.xdot0``. ``space``
+    "force": ‖M̂(q₀) (q̈₀ - q̂̈₀)‖² instead, the force balance of eq. 4 with the labels' q̈,
+    which is linear in the networks' M̂, D̂, Ĝ (the q̇ half of a velocity state is exact)."""
     if pairs.xdot0 is None:
         raise UserError("the acceleration loss (eq. 10) needs pairs.xdot0 (the dataset's qdd)")
     _check_pairs(model, pairs)
@@ -120,12 +139,19 @@ def accel_errors(model, pairs: Pairs):
         raise UserError(f"pairs.xdot0 must have shape {pairs.x0.shape}, got {pairs.xdot0.shape}")
     f = batch_vector_field(model, pairs.x0, pairs.u0)
     d = jnp.asarray(pairs.xdot0, f.dtype) - f
+    if space == "force":
+        n = model.config.n
+        d = jax.vmap(lambda q, v: _mass_times(model, q, v))(
+            jnp.asarray(pairs.x0[:, :n], f.dtype), d[:, n:])
+    elif space != "acceleration":
+        raise UserError(f"space: expected one of {list(ACCEL_SPACES)}, got {space!r}")
     return jnp.sum(d * d, axis=-1)
 
 
-def accel_loss(model, pairs: Pairs):
-    """Eq. 10: mean over the batch of ‖ẋ₀ - f(x₀, u₀)‖² (= ‖q̈ - q̂̈‖² for Lagrangian models)."""
-    return jnp.mean(accel_errors(model, pairs))
+def accel_loss(model, pairs: Pairs, space: str = "acceleration"):
+    """Eq. 10: mean over the batch of ‖ẋ₀ - f(x₀, u₀)‖² (= ‖q̈ - q̂̈‖² for Lagrangian models),
+    or of its force-space form (:func:`accel_errors`)."""
+    return jnp.mean(accel_errors(model, pairs, space))
 
 
 def rollout_errors(
