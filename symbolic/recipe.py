@@ -34,6 +34,7 @@ LOSS_KEYS: dict[str, tuple[str, tuple | None]] = {
     "loss": ("str", ("pair", "accel", "rollout")),
     "loss_weight": ("float", None),
     "accel_labels": ("str", ("recorded", "differences")),
+    "accel_space": ("str", ("acceleration", "force")),
 }
 
 #: [training.<physics network>]: what the network is built with and how it takes the data, in

@@ -138,9 +138,9 @@ duration = 3.0
 
 
 def test_a_recipe_fixes_a_known_input_and_the_damping_form(tmp_path, monkeypatch):
-    """[training.<network>] known_input / damping_form / momenta reach the trained model: the
-    stage's TrainConfig carries this spec's exact A(q), the damping's form and the momenta, in
-    full and quick runs alike; Table III's model column says so."""
+    """[training.<network>] known_input / damping_form / momenta / accel_space reach the trained
+    model: the stage's TrainConfig carries this spec's exact A(q), the damping's form, the
+    momenta and eq. 10's space, in full and quick runs alike; Table III's model column says so."""
     import importlib
     from types import SimpleNamespace
 
@@ -158,6 +158,9 @@ known_input = true
 known_input = true
 damping_form = "constant"
 momenta = "velocity"
+loss = "accel"
+accel_labels = "differences"
+accel_space = "force"
 """, base="task4")
     spec = load_spec(path)
     for quick in (False, True):
@@ -195,6 +198,7 @@ momenta = "velocity"
         assert tc.momenta == ("velocity" if kind == "hamiltonian" else "auto")
         assert tc.model.damping_form == ("constant" if kind == "hamiltonian" else "network")
         assert (tc.model.mass_init is None) == (kind == "hamiltonian")
+        assert tc.accel_space == ("force" if kind == "hamiltonian" else "acceleration")
 
 
 def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
