@@ -22,6 +22,7 @@ import jax.numpy as jnp
 
 from .errors import UserError
 from .integrate import rollout, step
+from .linalg import cho_solve
 
 __all__ = [
     "Pairs",
@@ -120,8 +121,6 @@ ACCEL_SPACES = ("acceleration", "force")
 def _mass_times(model, q, v):
     """M̂(q) v: L Lᵀ v for a Lagrangian network (M = L Lᵀ), a Cholesky solve for a Hamiltonian
     one (M⁻¹ = L Lᵀ)."""
-    from .linalg import cho_solve
-
     L = model.mass.factor(q)
     if model.config.kind == "hamiltonian":
         return cho_solve(L, v)
