@@ -33,36 +33,47 @@ def _pairs(n: int):
     return [(i, j) for i in range(n) for j in range(i, n)]
 
 
-def mass_sensitivities(M, vectors, scale=1.0):
+def _symmetric_columns(Minv, v, scale):
+    """-M⁻¹ E_ij v for every (i, j) of :func:`_pairs`, E_ij the symmetric unit direction times
+    ``scale[:, i, j]`` (or the constant ``scale``): s (M⁻¹[:, i] v_j + M⁻¹[:, j] v_i), once for
+    i = j; each (N, n)."""
+    cols = []
+    for i, j in _pairs(Minv.shape[1]):
+        s = scale[:, i, j, None] if np.ndim(scale) else scale
+        col = Minv[:, :, i] * v[:, j, None]
+        if i != j:
+            col = col + Minv[:, :, j] * v[:, i, None]
+        cols.append(-s * col)
+    return cols
+
+
+def _relative(M):
+    """sqrt(M_ii M_jj): an entry's change relative to the diagonal around it, (N, n, n)."""
+    d = np.sqrt(np.diagonal(M, axis1=1, axis2=2))
+    return d[:, :, None] * d[:, None, :]
+
+
+def mass_sensitivities(M, vectors, scale=1.0, *, Minv=None):
     """(N·n, n(n+1)/2) matrix: column (i, j) holds -M⁻¹ E_ij v at every sample (E_ij scaled by
     sqrt(M_ii M_jj)), each coordinate divided by ``scale``, the rows by sqrt(N); and the (i, j)
-    pairs. M: (N, n, n), vectors: (N, n) (q̈ for velocity data, q̇ for momentum data)."""
+    pairs. M: (N, n, n), vectors: (N, n) (q̈ for velocity data, q̇ for momentum data);
+    ``Minv``: M⁻¹ if the caller has it."""
     M = np.asarray(M, float)
-    v = np.asarray(vectors, float)
-    Minv = np.linalg.inv(M)
-    cols = []
-    for i, j in _pairs(M.shape[1]):
-        E = np.zeros_like(M)
-        s = np.sqrt(M[:, i, i] * M[:, j, j])
-        E[:, i, j] = s
-        E[:, j, i] = s
-        cols.append((-np.einsum("bij,bjk,bk->bi", Minv, E, v) / scale).ravel())
-    return np.stack(cols, 1) / np.sqrt(len(M)), _pairs(M.shape[1])
+    Minv = np.linalg.inv(M) if Minv is None else Minv
+    cols = _symmetric_columns(Minv, np.asarray(vectors, float), _relative(M))
+    J = np.stack([(c / scale).ravel() for c in cols], 1)
+    return J / np.sqrt(len(M)), _pairs(M.shape[1])
 
 
-def force_columns(M, q, qd, scale=1.0, g_degree: int = 3):
+def force_columns(M, q, qd, scale=1.0, g_degree: int = 3, *, Minv=None):
     """What a constant D and a polynomial G(q) do to q̈ = M⁻¹(... - D q̇ - G): the columns
     -M⁻¹ δD q̇ (δD symmetric) and -M⁻¹ δG(q) (δG's coordinates monomials of the standardised q
     up to ``g_degree``), scaled like :func:`mass_sensitivities`, each of unit norm."""
     M = np.asarray(M, float)
     q = np.asarray(q, float)
     n = M.shape[1]
-    Minv = np.linalg.inv(M)
-    cols = []
-    for i, j in _pairs(n):
-        E = np.zeros((n, n))
-        E[i, j] = E[j, i] = 1.0
-        cols.append(-np.einsum("bij,jk,bk->bi", Minv, E, qd))
+    Minv = np.linalg.inv(M) if Minv is None else Minv
+    cols = _symmetric_columns(Minv, np.asarray(qd, float), 1.0)
     std = q.std(0)
     z = (q - q.mean(0)) / np.where(std > 0, std, 1.0)
     monomials = [np.ones(len(q))]
@@ -89,9 +100,11 @@ def mass_identifiability(M, q, qd, qdd, *, g_degree: int = 3, names=None) -> dic
     names = list(names) if names is not None else [f"q{i}" for i in range(n)]
     scale_v = np.sqrt(np.mean(qdd**2, axis=0))
     scale_p = np.sqrt(np.mean(qd**2, axis=0))
-    Jv, pairs = mass_sensitivities(M, qdd, scale_v)
-    Jp, _ = mass_sensitivities(M, qd, scale_p)
-    JN = force_columns(M, q, qd, scale_v, g_degree) / np.sqrt(len(qd))
+    M = np.asarray(M, float)
+    Minv = np.linalg.inv(M)
+    Jv, pairs = mass_sensitivities(M, qdd, scale_v, Minv=Minv)
+    Jp, _ = mass_sensitivities(M, qd, scale_p, Minv=Minv)
+    JN = force_columns(M, q, qd, scale_v, g_degree, Minv=Minv) / np.sqrt(len(qd))
     coef, *_ = np.linalg.lstsq(JN, Jv, rcond=None)
     left = Jv - JN @ coef
     _, s_left, V = np.linalg.svd(left, full_matrices=False)
