@@ -89,16 +89,18 @@ def import_recordings(
     smooth: str | filters.Smoother = "none",
     rate: float | None = None,
     test_trajectories: int = 0,
+    differences: int = 2,
 ) -> ImportResult:
     """Turn recordings into a dataset for ``model`` (a preset name, spec path or ModelSpec).
 
     ``orientation_kind``: None (the files hold ``q0 ..``), ``"quaternion"`` or ``"rpy"``;
     ``smooth``: a :func:`symbolic.filters.parse_smoother` text; ``rate``: resample every
     trajectory to this uniform rate [Hz]; ``test_trajectories``: the last K trajectories form
-    the test split (``meta['splits']``).
+    the test split (``meta['splits']``); ``differences``: the order (2 or 4) of the central
+    differences where the smoother has no derivative of its own (none, movmean).
     """
     spec = load_spec(model)
-    sm = filters.parse_smoother(smooth)
+    sm = filters.parse_smoother(smooth, differences)
     n, m = spec.n, spec.m
     if orientation_kind is not None:
         _orientation_model(spec, orientation_kind)
@@ -115,8 +117,8 @@ def import_recordings(
     sources = []
     for k, rec in enumerate(recs):
         if len(rec.t) < max(2, sm.min_samples):
-            raise RecordingError(f"{rec.where}: {len(rec.t)} samples; smoothing {sm} needs at "
-                                 f"least {max(2, sm.min_samples)} per trajectory")
+            raise RecordingError(f"{rec.where}: {len(rec.t)} samples; smoothing {sm.label} needs "
+                                 f"at least {max(2, sm.min_samples)} per trajectory")
         if orientation_kind is not None:
             q_raw, twist = configurations_from_orientation(spec, rec, orientation_kind)
             twists.append(twist)

@@ -15,12 +15,19 @@ and their first and second time derivatives, along axis 0 of (N, k) arrays sampl
   remainder joins the last run).
 
 Savitzky-Golay and polyfit differentiate their polynomials; ``none`` and ``movmean`` have no
-derivative of their own, and their velocities and accelerations are central differences
-(``numpy.gradient`` with the times t, second order also on non-uniform times).
+derivative of their own, and their velocities and accelerations are central differences of
+``differences`` order: 2 (the default; ``numpy.gradient`` with the times t, 3 samples, second
+order also on non-uniform times) or 4 (the derivatives at each sample of the quartic through the
+5 samples around it: on uniform times the stencils (1, -8, 0, 8, -1) / 12h and (-1, 16, -30, 16,
+-1) / 12h², on non-uniform times the same interpolation in time). Order 2 keeps
+sin(ωh) / (ωh) of a sinusoid's velocity (91 % of a 0.6 Hz swing sampled at 5 Hz), order 4
+(8 sin(ωh) - sin(2ωh)) / (6ωh) (99 %), at 1.34 times the noise (white noise σ on the samples:
+0.71 σ/h against 0.95 σ/h on the velocities).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +36,8 @@ from .errors import UserError
 
 METHODS = ("none", "movmean", "savgol", "polyfit")
 USAGE = "none | movmean:W | savgol:W:P | polyfit:DEG:W"
+#: The orders of the central differences for smoothers without a derivative of their own.
+DIFFERENCES = (2, 4)
 
 
 class FilterError(UserError):
@@ -42,6 +51,13 @@ class Smoother:
     method: str = "none"
     window: int = 0
     degree: int = 0
+    differences: int = 2
+
+    def __post_init__(self):
+        if isinstance(self.differences, bool) or self.differences not in DIFFERENCES:
+            raise FilterError(f"differences: expected one of {', '.join(map(str, DIFFERENCES))} "
+                              f"(the order of the central differences), got "
+                              f"{self.differences!r}")
 
     @property
     def has_derivative(self) -> bool:
@@ -54,7 +70,7 @@ class Smoother:
             return self.window
         if self.method == "polyfit":
             return self.degree + 1
-        return 2
+        return 5 if self.differences == 4 else 2
 
     def describe(self) -> dict:
         d = {"method": self.method, "text": str(self)}
@@ -62,11 +78,24 @@ class Smoother:
             d["window_samples"] = self.window
         if self.method in ("savgol", "polyfit"):
             d["degree"] = self.degree
-        d["derivatives"] = (
-            "derivatives of the fitted polynomials" if self.has_derivative
-            else "central differences (numpy.gradient with t)"
-        )
+        if self.has_derivative:
+            d["derivatives"] = "derivatives of the fitted polynomials"
+        elif self.differences == 4:
+            d["differences"] = 4
+            d["derivatives"] = ("fourth-order central differences (the quartic through the 5 "
+                                "samples around each)")
+        else:
+            d["differences"] = 2
+            d["derivatives"] = "central differences (numpy.gradient with t)"
         return d
+
+    @property
+    def label(self) -> str:
+        """The setting's text, with the differences' order where it is not the default 2 and
+        the smoother uses differences (``none, differences 4``)."""
+        if self.has_derivative or self.differences == 2:
+            return str(self)
+        return f"{self}, differences {self.differences}"
 
     def __str__(self) -> str:
         if self.method == "none":
@@ -78,10 +107,19 @@ class Smoother:
         return f"polyfit:{self.degree}:{self.window}"
 
 
-def parse_smoother(text: str | Smoother) -> Smoother:
-    """``none``, ``movmean:W``, ``savgol:W:P`` or ``polyfit:DEG:W`` as a :class:`Smoother`."""
+def parse_smoother(text: str | Smoother, differences: int | None = None) -> Smoother:
+    """``none``, ``movmean:W``, ``savgol:W:P`` or ``polyfit:DEG:W`` as a :class:`Smoother`;
+    ``differences``: the order of the central differences where the smoother has no derivative
+    of its own (2 or 4; None keeps a given Smoother's, 2 for a text)."""
     if isinstance(text, Smoother):
-        return text
+        if differences is None:
+            return text
+        return dataclasses.replace(text, differences=differences)
+    sm = _parse(text)
+    return sm if differences is None else dataclasses.replace(sm, differences=differences)
+
+
+def _parse(text: str) -> Smoother:
     parts = str(text).strip().split(":")
     method, args = parts[0], parts[1:]
     if method not in METHODS:
@@ -128,12 +166,12 @@ def smooth(t, y, smoother: str | Smoother = "none"):
     if squeeze:
         y = y[:, None]
     if len(t) < sm.min_samples:
-        raise FilterError(f"smooth: {sm} needs at least {sm.min_samples} samples per "
+        raise FilterError(f"smooth: {sm.label} needs at least {sm.min_samples} samples per "
                           f"trajectory, got {len(t)}")
     if sm.method == "none":
-        out = _with_differences(t, y.copy())
+        out = _with_differences(t, y.copy(), sm.differences)
     elif sm.method == "movmean":
-        out = _with_differences(t, movmean(y, sm.window))
+        out = _with_differences(t, movmean(y, sm.window), sm.differences)
     elif sm.method == "savgol":
         out = savgol(t, y, sm.window, sm.degree)
     else:
@@ -141,7 +179,10 @@ def smooth(t, y, smoother: str | Smoother = "none"):
     return tuple(a[:, 0] for a in out) if squeeze else out
 
 
-def _with_differences(t, y):
+def _with_differences(t, y, order: int = 2):
+    if order == 4:  # the quartic through each 5 samples: it passes through y
+        _, yd, ydd = local_fits(t, y, 5, 4) if not is_uniform(t) else savgol(t, y, 5, 4)
+        return y, yd, ydd
     yd = gradient(t, y)
     return y, yd, gradient(t, yd)
 

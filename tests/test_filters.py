@@ -108,6 +108,50 @@ def test_central_differences_are_exact_for_quadratics(uniform):
     np.testing.assert_allclose(sdd[2:-2], 4.0, atol=1e-6)
 
 
+@pytest.mark.parametrize("uniform", [True, False])
+def test_fourth_order_differences_are_exact_for_quartics(uniform):
+    # the quartic through the 5 samples around each sample: exact for quartics, ends included,
+    # and the samples themselves kept
+    t = np.linspace(0.0, 1.0, 30) if uniform else nonuniform_times(30)
+    y = np.stack([t**4 - 2 * t**3 + t, 3 * t**2], 1)
+    s, sd, sdd = F.smooth(t, y, F.parse_smoother("none", 4))
+    np.testing.assert_array_equal(s, y)
+    np.testing.assert_allclose(sd[:, 0], 4 * t**3 - 6 * t**2 + 1, atol=1e-9)
+    np.testing.assert_allclose(sdd[:, 0], 12 * t**2 - 12 * t, atol=1e-6)
+    np.testing.assert_allclose(sd[:, 1], 6 * t, atol=1e-9)
+    # second order is not exact for a quartic's slope
+    assert np.abs(F.smooth(t, y, "none")[1][:, 0] - (4 * t**3 - 6 * t**2 + 1)).max() > 1e-4
+
+
+def test_fourth_order_differences_are_the_classic_stencils():
+    rng = np.random.default_rng(3)
+    h, y = 0.2, rng.normal(size=(40, 1))
+    t = h * np.arange(40)
+    _, sd, sdd = F.smooth(t, y, F.parse_smoother("movmean:1", 4))  # movmean:1 keeps y
+    v = y[:, 0]
+    np.testing.assert_allclose(sd[2:-2, 0], (v[:-4] - 8 * v[1:-3] + 8 * v[3:-1] - v[4:]) / (12 * h),
+                               atol=1e-12)
+    np.testing.assert_allclose(
+        sdd[2:-2, 0], (-v[:-4] + 16 * v[1:-3] - 30 * v[2:-2] + 16 * v[3:-1] - v[4:]) / (12 * h * h),
+        atol=1e-10)
+
+
+def test_the_orders_velocity_gains_on_a_sinusoid():
+    # the documented gains: sin(x)/x and (8 sin x - sin 2x)/(6x) at x = ωh (0.6 Hz at 5 Hz)
+    f, h = 0.6, 0.2
+    t = h * np.arange(200)
+    y = np.sin(2 * np.pi * f * t)[:, None]
+    x = 2 * np.pi * f * h
+    amp = 2 * np.pi * f
+    for order, gain in ((2, np.sin(x) / x), (4, (8 * np.sin(x) - np.sin(2 * x)) / (6 * x))):
+        _, sd, _ = F.smooth(t, y, F.parse_smoother("none", order))
+        got = sd[10:-10, 0] / (amp * np.cos(2 * np.pi * f * t[10:-10]))
+        keep = np.abs(np.cos(2 * np.pi * f * t[10:-10])) > 0.5
+        np.testing.assert_allclose(got[keep], gain, rtol=1e-9)
+    assert round(np.sin(x) / x, 3) == 0.908
+    assert round((8 * np.sin(x) - np.sin(2 * x)) / (6 * x), 3) == 0.99
+
+
 def test_hermite_resampling_is_exact_for_cubics():
     t = nonuniform_times(40)
     y, yd, ydd = cubic(t)
@@ -135,6 +179,21 @@ def test_hermite_resampling_is_exact_for_cubics():
 def test_bad_settings(text, match):
     with pytest.raises(F.FilterError, match=match):
         F.parse_smoother(text)
+
+
+@pytest.mark.parametrize("order", [3, 0, True, "4"])
+def test_bad_difference_orders(order):
+    with pytest.raises(F.FilterError, match=r"differences: expected one of 2, 4"):
+        F.parse_smoother("none", order)
+
+
+def test_fourth_order_differences_need_five_samples():
+    with pytest.raises(F.FilterError, match=r"none, differences 4 needs at least 5 samples"):
+        F.smooth(np.arange(4.0), np.arange(4.0), F.parse_smoother("none", 4))
+    # a smoother with a derivative of its own ignores the order (and says nothing of it)
+    sm = F.parse_smoother("savgol:5:3", 4)
+    assert sm.label == "savgol:5:3" and "differences" not in sm.describe()
+    assert F.parse_smoother("none", 4).describe()["differences"] == 4
 
 
 def test_round_trip_of_the_setting_text():

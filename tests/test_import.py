@@ -149,7 +149,7 @@ def test_cli_writes_a_dataset_the_learning_side_loads(sim, tmp_path, capsys):
     assert len(loaded.t) == 200
     meta = read_dataset(out).meta
     assert meta["import"]["smooth"] == {
-        "method": "movmean", "text": "movmean:20", "window_samples": 20,
+        "method": "movmean", "text": "movmean:20", "window_samples": 20, "differences": 2,
         "derivatives": "central differences (numpy.gradient with t)"}
     assert meta["import"]["resample"]["rate"] == 100.0
     assert meta["import"]["files"][0]["sha256"]
@@ -159,6 +159,36 @@ def test_cli_writes_a_dataset_the_learning_side_loads(sim, tmp_path, capsys):
         f"softpinn: error: --out {out}: file exists (use --force to overwrite)\n")
     assert main([*argv, "--force", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["orientation"] == "quaternion"
+
+
+def test_fourth_order_differences_at_a_low_rate(sim, tmp_path, capsys):
+    # every 20th sample (50 Hz): the second-order differences' bias dominates, the fourth-order
+    # ones are 10x closer to the true velocities; the order is recorded
+    rows = slice(None, None, 20)
+    path = write_csv(tmp_path / "rec.csv", columns(sim, rows=rows))
+    errs = {}
+    for order in (2, 4):
+        out = tmp_path / f"d{order}.npz"
+        assert main(["import", str(path), "--model", "task4", "--out", str(out),
+                     "--differences", str(order)]) == 0
+        data = read_dataset(out)
+        errs[order] = rel(data.qd, sim.qd[rows])
+        smooth = data.meta["import"]["smooth"]
+        assert smooth["differences"] == order and smooth["text"] == "none"
+    assert errs[4] < errs[2] / 10, errs
+    capsys.readouterr()
+    # too few samples for the 5-point differences: one line, naming the order
+    short = write_csv(tmp_path / "short.csv", columns(sim, rows=slice(0, 4)))
+    assert main(["import", str(short), "--model", "task4", "--out", str(tmp_path / "s.npz"),
+                 "--differences", "4"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "smoothing none, differences 4 needs at least 5" in err
+    assert not (tmp_path / "s.npz").exists()
+    with pytest.raises(SystemExit) as exc:
+        main(["import", str(path), "--model", "task4", "--out", str(tmp_path / "x.npz"),
+              "--differences", "3"])
+    assert exc.value.code == 2
+    assert "--differences: invalid choice: 3" in capsys.readouterr().err
 
 
 # --------------------------------------------------------------------------------------------

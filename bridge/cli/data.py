@@ -39,6 +39,11 @@ def register(subparsers) -> None:
     p.add_argument("--smooth", default="none", metavar="METHOD",
                    help="none | movmean:W (MATLAB's movmean, W samples) | savgol:W:P "
                    "(Savitzky-Golay) | polyfit:DEG:W (polynomials over runs of W samples)")
+    p.add_argument("--differences", type=int, choices=(2, 4), default=2, metavar="ORDER",
+                   help="order of the central differences that give velocities and "
+                   "accelerations where the smoother has no derivative of its own (none, "
+                   "movmean): 2 (3 samples) or 4 (5 samples: less bias at low rates, 1.34x the "
+                   "noise; docs/import.md) (default: %(default)s)")
     p.add_argument("--rate", type=float, metavar="HZ",
                    help="resample every trajectory to this uniform rate after smoothing "
                    "(default: keep the recorded times)")
@@ -95,6 +100,7 @@ def cmd_import(args) -> int:
         smooth=args.smooth,
         rate=args.rate,
         test_trajectories=args.test_trajectories,
+        differences=args.differences,
     )
     data = result.data
     write_dataset(out, data, force=args.force)
