@@ -282,7 +282,8 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
               f"{plan.substeps[main_name]} RK4 sub-step(s) per step), inputs "
               f"{'interpolated linearly' if plan.input_hold == 'linear' else 'held'} between "
               "samples. The preprocessings, as `softpinn import --smooth` at each rate: "
-              + "; ".join(f"{rn}: " + ", ".join(f"`{s}`" for s in per.values())
+              + "; ".join(f"{rn}: " + ", ".join(f"`{s}`" + _differences(plan, p)
+                                                for p, s in per.items())
                           for rn, per in plan.preprocessing.items()) + ".", ""]
     # sensor and raw against processed (Fig. 52)
     rec = main["record"]
@@ -388,3 +389,10 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
     tmp.write_text(wall.fill("\n".join(lines)), encoding="utf-8")
     os.replace(tmp, path)
     return path
+
+
+def _differences(plan, prep: str) -> str:
+    """`` with `--differences K` `` where preprocessing ``prep`` takes differences of order K
+    other than the default 2 (plans written before the option have none)."""
+    order = (getattr(plan, "differences", None) or {}).get(prep, 2)
+    return f" with `--differences {order}`" if order != 2 else ""

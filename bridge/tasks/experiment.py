@@ -67,9 +67,12 @@ RESET_EVERY = 3.0
 #: give the velocities of straight lines, which at 5 Hz (savgol:5:2, 1 s) lost 29 % of a 0.6 Hz
 #: swing's velocity and were 0.120 rad/s rms off the true arm's (0.056 raw, 0.054 with cubics);
 #: cubics over 0.8 s instead of quadratics over 0.4 s gave both networks lower 5 s errors at
-#: every rate (RESULTS.md, 27 Nov 2026).
+#: every rate (RESULTS.md, 27 Nov 2026). ``differences``: the order of the central differences
+#: (``softpinn import --differences``) where the smoother has no derivative of its own (2 where
+#: not given). The raw data take fourth-order differences: second order keeps 91 % of a 0.6 Hz
+#: swing's velocity at 5 Hz, fourth order 99 % (RESULTS.md, 27 Nov 2026).
 PREPROCESSING: dict[str, dict[str, Any]] = {
-    "none": {},
+    "none": {"differences": 4},
     "movmean": {"window_s": 0.2, "min": 3},
     "polyfit": {"degree": 3, "window_s": 1.0, "min": 5},
     "savgol": {"degree": 3, "window_s": 0.8, "min": 5},
@@ -79,6 +82,11 @@ PAPER_COLUMNS = {"movmean": "smoothing", "polyfit": "polynomial_fitting"}
 KINDS = ("lagrangian", "blackbox")
 #: trajectories of a quick run (the last two for test)
 QUICK_TRAJECTORIES, QUICK_TEST = 12, 2
+
+
+def differences(name: str) -> int:
+    """The order of the central differences of preprocessing ``name`` (``--differences``)."""
+    return int(PREPROCESSING[name].get("differences", 2))
 
 
 def smoother(name: str, rate: float) -> str:
@@ -108,6 +116,7 @@ class ExperimentPlan:
     trajectories: int
     test_trajectories: int
     preprocessing: Mapping[str, Mapping[str, str]]  # rate name -> preprocessing -> smoother
+    differences: Mapping[str, int]  # preprocessing -> order of its central differences
     substeps: Mapping[str, int]  # rate name -> RK4 sub-steps per data step
     models: Mapping[str, Mapping[str, Any]]
     samples: int | None
@@ -180,6 +189,7 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
         quick=quick, data=data, sensor=sensor.to_dict(), main_rate=sensor.rate_hz,
         rates=tuple(rates), sim_rate=sim_rate, trajectories=total, test_trajectories=ntest,
         preprocessing={rate_name(r): {p: smoother(p, r) for p in PREPROCESSING} for r in rates},
+        differences={p: differences(p) for p in PREPROCESSING},
         substeps=substeps, models=models,
         samples=None if quick else cfg.physics_samples, batch_size=recipe.batch_size,
         input_hold=recipe.input_hold, horizon=float(recipe.prediction_horizon),
@@ -216,9 +226,10 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
                          lambda d, r=rate: stage_record(spec, plan, r, sim, d))
         results["rates"][rn] = {"record": rec, "preprocessing": {}}
         for prep, smooth in plan.preprocessing[rn].items():
-            imp_settings = _import_settings(plan, rec, smooth)
+            imp_settings = _import_settings(plan, rec, smooth, prep)
             imp = stages.run(f"import/{rn}/{prep}", imp_settings,
-                             lambda d, s=smooth, r=rec: stage_import(spec, plan, r, s, d))
+                             lambda d, s=smooth, r=rec, o=plan.differences[prep]: stage_import(
+                                 spec, plan, r, s, d, differences=o))
             imports[rate, prep] = (rec, imp, imp_settings)
     # the models not trained and analysed yet: with --jobs, in worker processes first
     work = [(f"{rate_name(rate)}/{prep}/{kind}", _model_worker,
@@ -262,9 +273,12 @@ def _record_settings(plan: ExperimentPlan, rate: float) -> dict:
     return {"data": plan.data, "sensor": plan.sensor, "rate": rate}
 
 
-def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str) -> dict:
-    return {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data, "smooth": smooth,
-            "test": plan.test_trajectories}
+def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str, prep: str) -> dict:
+    out = {"record": rec["csv"], "sensor": rec["sensor"], "data": plan.data, "smooth": smooth,
+           "test": plan.test_trajectories}
+    if plan.differences[prep] != 2:  # (the settings of second order as before it was a choice)
+        out["differences"] = plan.differences[prep]
+    return out
 
 
 def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: str, kind: str,
@@ -300,7 +314,7 @@ def _model_worker(config: ReproduceConfig, out: str, rate: float, prep: str,
     rn = rate_name(rate)
     probe = parallel.Probe(Path(out), lambda _: None)
     rec = probe.run(f"record/{rn}", _record_settings(plan, rate), None)
-    imp_settings = _import_settings(plan, rec, plan.preprocessing[rn][prep])
+    imp_settings = _import_settings(plan, rec, plan.preprocessing[rn][prep], prep)
     imp = probe.run(f"import/{rn}/{prep}", imp_settings, None)
     return parallel.run_in_worker(config, f"{rn}/{prep}/{kind}", out, lambda stages, progress: (
         model_stages(spec, plan, stages, rate, prep, kind, rec, imp, imp_settings, progress)))

@@ -74,15 +74,18 @@ def bending_only(data, spec):
                                meta=meta)
 
 
-def stage_import(spec, plan, recorded: dict, smooth: str, folder: Path) -> dict:
-    """Import the recording with one preprocessing (``softpinn import``'s library) and keep the
-    bending coordinates (:func:`bending_only`)."""
+def stage_import(spec, plan, recorded: dict, smooth: str, folder: Path, *,
+                 differences: int = 2) -> dict:
+    """Import the recording with one preprocessing (``softpinn import``'s library; smoother
+    ``smooth``, central differences of order ``differences`` where it has no derivative) and keep
+    the bending coordinates (:func:`bending_only`)."""
     from softpinn.symbolic.datafile import write_dataset
     from softpinn.symbolic.dataimport import import_recordings
+    from softpinn.symbolic.filters import parse_smoother
 
     output = recorded["sensor"]["output"]
     res = import_recordings([recorded["csv"]], spec, orientation_kind=output, smooth=smooth,
-                            test_trajectories=plan.test_trajectories)
+                            test_trajectories=plan.test_trajectories, differences=differences)
     data = bending_only(res.data, spec)
     path = write_dataset(folder / "data.npz", data, force=True)
     truth = np.load(recorded["truth"])
@@ -91,7 +94,8 @@ def stage_import(spec, plan, recorded: dict, smooth: str, folder: Path) -> dict:
     dq = data.q - truth["q"][:, :2]
     dqd = data.qd - truth["qd"][:, :2]
     splits = data.meta["splits"]
-    return {"path": str(path), "smooth": smooth, "samples": len(data.t),
+    return {"path": str(path), "smooth": parse_smoother(smooth, differences).label,
+            "samples": len(data.t),
             "train": splits["train"], "test": splits["test"], "notes": res.notes,
             "q_error_rms": float(np.sqrt(np.mean(dq**2))),
             "qd_error_rms": float(np.sqrt(np.mean(dqd**2))),
