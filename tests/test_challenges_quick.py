@@ -78,6 +78,29 @@ def test_fast_training_study_measures_what_it_reports(quick_run):
     assert (quick_run / "fast" / "time_to_loss.png").is_file()
 
 
+def test_velocity_study_trains_the_force_space_pair(quick_run):
+    """Challenge 3: the Lagrangian network and the Hamiltonian network from q̇ in force space,
+    each with the known A and a constant D, on velocity data alone, with their targets."""
+    study = json.loads((quick_run / "velocity" / "study.json").read_text())["study"]
+    models = study["results"]["tasks"]["task5"]["variants"]["100Hz"]
+    for name, kind in (("lagrangian-force", "lagrangian"), ("hamiltonian-force", "hamiltonian")):
+        e = models[name]
+        assert e["accel_space"] == "force" and e["loss"] == "accel" and e["state"] == "velocity"
+        config = json.loads((quick_run / "velocity" / "task5" / f"train-100Hz-{name}" / "run"
+                             / "config.json").read_text())
+        model = config["model"]
+        assert model["kind"] == kind and model["input_form"] == "known"
+        assert model["damping_form"] == "constant" and model.get("mass_init") is None
+        assert config["train"]["accel_labels"] == "differences"
+        assert e["matrices"]["A"] < 1e-9  # the known A, exactly
+    assert models["hamiltonian-force"]["momenta"] == "velocity"
+    whats = [t["what"] for t in study["results"]["targets"]]
+    assert any("in force space, prediction error vs the Lagrangian network in force space" in w
+               for w in whats)
+    assert any(w.endswith("in force space, M⁻¹ direct") for w in whats)
+    assert "Lagrangian, A known, eq. 10 in force space" in study["markdown"]
+
+
 def test_a_second_call_reuses_the_finished_studies(quick_run, capsys):
     before = (quick_run / "results.json").read_text()
     assert main(["reproduce", "challenges", "--quick", "--out", str(quick_run)]) == 0

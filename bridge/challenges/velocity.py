@@ -55,7 +55,22 @@ QUICK = {"task5": {"epochs": 10, "duration": 1.0}}
 MODELS = (("lagrangian", "lagrangian", "Lagrangian (eq. 6)"),
           ("hamiltonian", "hamiltonian", "Hamiltonian from q̇ (eq. 7, p = M̂ q̇)"),
           ("hamiltonian-rk4", "hamiltonian", "Hamiltonian from q̇, eq. 8 (mapped RK4 step)"),
-          ("hamiltonian-known", "hamiltonian", "Hamiltonian from q̇, A known"))
+          ("hamiltonian-known", "hamiltonian", "Hamiltonian from q̇, A known"),
+          ("lagrangian-force", "lagrangian", "Lagrangian, A known, eq. 10 in force space"),
+          ("hamiltonian-force", "hamiltonian",
+           "Hamiltonian from q̇, A known, eq. 10 in force space"))
+#: The force-space pair (``softpinn train --accel-space force``): eq. 10 as ‖M̂ (q̈ - q̂̈)‖², linear
+#: in the networks' M, D, G, with the true A(q) fixed (known actuator model, which pins the scale
+#: velocity data leave open) and a constant D (the arms' damping is constant); nothing of the
+#: file's momenta is used (no ``mass_init``). Their own budget, the same for both: AdamW
+#: epochs, learning rate and batch size (None: the plan's); the quick form takes the quick
+#: budget. Every variant of :data:`VARIANTS` trains the pair.
+FORCE_MODELS = ("lagrangian-force", "hamiltonian-force")
+FORCE_BUDGETS: dict[str, dict[str, Any]] = {
+    "task4": {"epochs": 1500, "lr": 1e-2, "batch_size": 64},
+    "task5": {"epochs": 1500, "lr": 1e-2, "batch_size": 64},
+}
+FORCE_QUICK = {"epochs": 30, "lr": 1e-2, "batch_size": None}
 RK4_VARIANTS = {"task5": ("100Hz",)}
 #: Where the Hamiltonian network from q̇ also trains with the true A(q) fixed (challenge 2a's
 #: known actuator model, ``input_form="known"``), which pins the scale velocities leave open.
@@ -101,7 +116,8 @@ def _plan(task: str, quick: bool):
 
 def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
            known: bool = False) -> dict:
-    """One network on the variant's physics data; a Hamiltonian one from its velocities."""
+    """One network on the variant's physics data; a Hamiltonian one from its velocities. ``m``
+    may set ``damping_form``, ``accel_space`` and ``batch_size`` besides the recipe's keys."""
     from ...learn.data import load_dataset
     from ...learn.models import ModelConfig
     from ...learn.train import TrainConfig, train
@@ -110,17 +126,20 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
     data = load_dataset(f["path"])
     mc = ModelConfig(kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]),
                      potential=tuple(m["potential"]), damping=tuple(m["damping"]),
-                     input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64")
+                     input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64",
+                     damping_form=str(m.get("damping_form", "network")))
     if known:
         from ..exact.serialize import spec_known_input
 
         mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
     tc = TrainConfig(
-        model=mc, epochs=int(m["epochs"]), batch_size=plan.batch_size, lr=float(m["lr"]),
+        model=mc, epochs=int(m["epochs"]), batch_size=m.get("batch_size", plan.batch_size),
+        lr=float(m["lr"]),
         seed=0, test_trajectories=tuple(f["test"]), samples=plan.physics_samples,
         lbfgs_steps=int(m["lbfgs"]), substeps=int(m["substeps"]),
         input_hold=str(m["input_hold"]), loss=str(m.get("loss", "pair")),
         accel_labels=str(m.get("accel_labels", "recorded")),
+        accel_space=str(m.get("accel_space", "acceleration")),
         loss_weight=float(m.get("loss_weight", 1.0)),
         eval_every=max(1, int(m["epochs"]) // 25), checkpoint_every=max(1, int(m["epochs"])),
         momenta="velocity" if kind == "hamiltonian" else "auto",
@@ -194,12 +213,15 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
         if name == "hamiltonian-known" and (quick or
                                             variant.name not in KNOWN_VARIANTS.get(task, ())):
             continue
+        if name in FORCE_MODELS:
+            m = force_model(m, task, quick)
+        known = name == "hamiltonian-known" or name in FORCE_MODELS
         settings = {"plan": plan.to_dict(), "variant": variant.name, "model": m, "kind": kind}
-        if name == "hamiltonian-known":
+        if known:
             settings["known"] = True
         tag = f"{variant.name}-{name}"
         trained = stages.run(f"train-{tag}", settings,
-                             lambda f, k=kind, mm=m, kn=name == "hamiltonian-known": _train(
+                             lambda f, k=kind, mm=m, kn=known: _train(
                                  spec, plan, k, mm, files, f, progress, known=kn))
         pred = stages.run(f"predict-{tag}", settings,
                           lambda f, t=trained: _predict(plan, files, t, f))
@@ -218,7 +240,21 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
             "substeps": int(m["substeps"]), "loss": str(m.get("loss", "pair")),
             "momenta": trained["config"].get("momenta"),
             "state": trained["config"]["model"]["state_kind"],
+            "accel_space": trained["config"].get("accel_space", "acceleration"),
+            "lr": float(m["lr"]),
         }
+    return out
+
+
+def force_model(m: dict, task: str, quick: bool) -> dict:
+    """The recipe's model ``m`` (networks, sub-steps) trained in force space (see
+    :data:`FORCE_BUDGETS`): eq. 10 on differenced accelerations, a constant D, its own budget."""
+    b = FORCE_QUICK if quick else FORCE_BUDGETS[task]
+    out = {**m, "loss": "accel", "accel_labels": "differences", "accel_space": "force",
+           "damping_form": "constant", "epochs": int(b["epochs"]), "lr": float(b["lr"]),
+           "lbfgs": 0}
+    if b["batch_size"] is not None:
+        out["batch_size"] = int(b["batch_size"])
     return out
 
 
@@ -269,10 +305,12 @@ def _figure(results: dict[str, Any], path: Path) -> None:
                              constrained_layout=True)
     x = np.arange(len(COLUMNS))
     colors = {"lagrangian": "C0", "hamiltonian": "C3", "hamiltonian-rk4": "C1",
-              "hamiltonian-known": "C2"}
+              "hamiltonian-known": "C2", "lagrangian-force": "C9", "hamiltonian-force": "C4"}
     short = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian\nfrom q̇",
              "hamiltonian-rk4": "Hamiltonian\nfrom q̇, eq. 8",
-             "hamiltonian-known": "Hamiltonian\nfrom q̇, A known"}
+             "hamiltonian-known": "Hamiltonian\nfrom q̇, A known",
+             "lagrangian-force": "Lagrangian,\nforce space",
+             "hamiltonian-force": "Hamiltonian\nfrom q̇,\nforce space"}
     for j, (task, variant) in enumerate(panels):
         models = results[task]["variants"][variant]
         present = [(name, label) for name, _kind, label in MODELS if name in models]
@@ -331,6 +369,35 @@ def _targets(results: dict[str, Any]) -> list[dict[str, Any]]:
                                 + ", ".join(LABELS[c] for c in COLUMNS) + ")",
                         "target": f"≤ {TARGET_PERCENT:g} %", "measured": f"{_fmt(worst)} %",
                         "met": worst is not None and worst <= TARGET_PERCENT})
+        out += _force_targets(variant, models)
+    return out
+
+
+def _force_targets(variant: str, models: dict[str, Any]) -> list[dict[str, Any]]:
+    """The force-space pair's targets on one task 5 variant: the Hamiltonian network's
+    prediction error against the Lagrangian network's of the same budget, and its M, D, G (A is
+    the known one) and, apart, its M⁻¹ within :data:`TARGET_PERCENT` directly."""
+    h = models.get("hamiltonian-force")
+    if h is None:
+        return []
+    out = []
+    lg = models.get("lagrangian-force")
+    if lg is not None:
+        eh, el = h["prediction_error"], lg["prediction_error"]
+        ok = (eh is not None and el is not None and math.isfinite(eh) and math.isfinite(el)
+              and eh <= el)
+        out.append({"what": f"task5 {variant}: Hamiltonian-from-q̇ in force space, prediction "
+                            "error vs the Lagrangian network in force space", "target":
+                            "no worse", "measured": f"{_fmt(eh)} vs {_fmt(el)}", "met": bool(ok)})
+    mt = h["matrices"]
+    for cols in (("M", "D", "G"), ("M_inv",)):
+        vals = [mt[c] for c in cols if mt.get(c) is not None and math.isfinite(mt[c])]
+        worst = max(vals) if len(vals) == len(cols) else None
+        out.append({"what": f"task5 {variant}: Hamiltonian-from-q̇ in force space, "
+                            + ", ".join(LABELS[c] for c in cols) + " direct"
+                            + (" (worst)" if len(cols) > 1 else ""),
+                    "target": f"≤ {TARGET_PERCENT:g} %", "measured": f"{_fmt(worst)} %",
+                    "met": worst is not None and worst <= TARGET_PERCENT})
     return out
 
 
@@ -349,7 +416,13 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         "‖q − q̂‖² of a rollout from the true initial state with the true inputs. Two more "
         "Hamiltonian networks from q̇ where marked: trained with eq. 8 through the mapped RK4 "
         "step where the recipe's loss is eq. 10, and with the true A(q) fixed (challenge 2a's "
-        "known actuator model), which pins the scale velocity data leave open.", "",
+        "known actuator model), which pins the scale velocity data leave open. The last two "
+        "rows of each data set, a pair with their own budget: the Lagrangian network and the "
+        "Hamiltonian network from q̇, both with A known and a constant D, trained on eq. 10 "
+        "in force space (`softpinn train --accel-space force`: ‖M̂ (q̈ − q̂̈)‖² = ‖M̂ q̈ + Ĉ q̇ "
+        "+ D̂ q̇ + Ĝ − A u‖², linear in the networks' M, D, G, where the acceleration space "
+        "puts M̂⁻¹ in front of every term), q̈ from central differences of q̇, nothing taken "
+        "from the file's momenta.", "",
         "| task | data | network | loss | state | " + " | ".join(LABELS[c] for c in COLUMNS)
         + " | α | after α: M, D, A, G | test loss | prediction error | train time |",
         "|---" * (len(COLUMNS) + 10) + "|",
@@ -359,7 +432,9 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         ar = mt["alpha_residual"]
         after = ", ".join(_fmt(ar.get(k), 2) for k in ("M", "D", "A", "G"))
         lines.append(
-            f"| {task} | {variant} | {label} | {e['loss']} | {e['state']} | "
+            f"| {task} | {variant} | {label} | {e['loss']}"
+            + (" (force space)" if e.get("accel_space") == "force" else "")
+            + f" | {e['state']} | "
             + " | ".join(_fmt(mt[c], 2) + " %" for c in COLUMNS)
             + f" | {_fmt(mt['alpha'])} | {after} % | {_fmt(e['best_test_loss'])} | "
             f"{_fmt(e['prediction_error'])} ({e['horizon_s']:g} s) | "
@@ -370,6 +445,11 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         first = next(iter(r["variants"].values()))["lagrangian"]
         budgets.append(f"{task}: {first['epochs']} AdamW epochs + {first['lbfgs_steps']} "
                        f"L-BFGS iterations on {r['samples'] or 'all'} training pairs")
+        force = next((v[n] for v in r["variants"].values() for n in FORCE_MODELS if n in v),
+                     None)
+        if force is not None:
+            budgets.append(f"{task} in force space: {force['epochs']} AdamW epochs at lr "
+                           f"{force['lr']:g}, the same training pairs")
     staged = sum(r.get("stage_seconds", 0.0) for r in results.values())
     lines += ["Budgets (both networks alike): " + "; ".join(budgets)
               + f". Wall time of this call {seconds:.0f} s; its stages took {staged:.0f} s "
