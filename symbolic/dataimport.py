@@ -89,7 +89,7 @@ def import_recordings(
     smooth: str | filters.Smoother = "none",
     rate: float | None = None,
     test_trajectories: int = 0,
-    differences: int = 2,
+    differences: int | None = None,
 ) -> ImportResult:
     """Turn recordings into a dataset for ``model`` (a preset name, spec path or ModelSpec).
 
@@ -97,7 +97,8 @@ def import_recordings(
     ``smooth``: a :func:`symbolic.filters.parse_smoother` text; ``rate``: resample every
     trajectory to this uniform rate [Hz]; ``test_trajectories``: the last K trajectories form
     the test split (``meta['splits']``); ``differences``: the order (2 or 4) of the central
-    differences where the smoother has no derivative of its own (none, movmean).
+    differences where the smoother has no derivative of its own (none, movmean); None keeps a
+    given Smoother's, 2 for a text.
     """
     spec = load_spec(model)
     sm = filters.parse_smoother(smooth, differences)
