@@ -127,6 +127,11 @@ class TrainConfig:
                           "(acceleration), or M̂(q) (q̈ - q̂̈) (force: the residual of eq. 4, "
                           "linear in the networks' M, D, G; a physics model on (q, q̇) with "
                           "--known-input)", ACCEL_SPACES)
+    accel_weights: tuple[float, ...] | None = _f(
+        None, "loss", "weights of the force-space residual's n coordinates (loss accel, "
+        "accel_space force): each coordinate of M̂ (q̈ - q̂̈) times its weight; "
+        "--accel-weights-from RUN sets them to mean(s) / s_i, s_i the rms of M̂ q̈ of RUN's "
+        "model over the training data (default: all 1)")
     momenta: str = _f("auto", "loss", "momenta p of a Hamiltonian network: from the data file "
                       "(eq. 9), or from the velocities, p = M(q) qd with the network's own mass "
                       "matrix (eq. 8 on q, qd; learn/velocity.py); auto: data when the file's "
@@ -255,6 +260,7 @@ class TrainConfig:
             raise UserError(f"init: expected a run folder, got {self.init!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
+        self._check_accel_weights()
         if self.accel_labels != "recorded" and self.loss != "accel":
             raise UserError(
                 f"accel_labels: {self.accel_labels!r} is for loss 'accel', not {self.loss!r}"
@@ -290,6 +296,27 @@ class TrainConfig:
             raise UserError("accel_space: 'force' needs a known input matrix (--known-input): "
                             "with A learned the force residual is smallest for a model of "
                             "vanishing M, D, G and A")
+
+    def _check_accel_weights(self):
+        """``accel_weights``: None, or n finite numbers > 0, for ``accel_space`` "force"."""
+        w = self.accel_weights
+        if w is None:
+            return
+        if isinstance(w, list):
+            w = tuple(w)
+            object.__setattr__(self, "accel_weights", w)
+        n = self.model.n
+        ok = isinstance(w, tuple) and len(w) == n and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+            for v in w)
+        if not ok:
+            raise UserError(f"accel_weights: expected {n} finite numbers > 0 (one per "
+                            f"coordinate), got {w!r}")
+        object.__setattr__(self, "accel_weights", tuple(float(v) for v in w))
+        if self.accel_space != "force":
+            raise UserError("accel_weights: the weights are for accel_space 'force' (the "
+                            "force residual's coordinates), not "
+                            f"{self.accel_space!r}")
 
     def _check_momenta(self):
         """``momenta`` against the model: Hamiltonian networks only; "data" / "velocity" set

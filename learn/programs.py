@@ -57,7 +57,8 @@ def to_pairs(p: PairData, dtype) -> Pairs:
 def _configured(config: TrainConfig, accel: Callable, rollout: Callable, pair: Callable):
     """The one of ``accel``, ``rollout``, ``pair`` that ``config.loss`` names, with its options."""
     if config.loss == "accel":
-        return lambda model, pairs: accel(model, pairs, config.accel_space)
+        return lambda model, pairs: accel(model, pairs, config.accel_space,
+                                          config.accel_weights)
     kw = dict(weight=config.loss_weight, substeps=config.substeps, input_hold=config.input_hold)
     if config.loss == "rollout":
         return lambda model, windows: rollout(

@@ -94,6 +94,13 @@ def test_velocity_study_trains_the_force_space_pair(quick_run):
         assert config["train"]["accel_labels"] == "differences"
         assert e["matrices"]["A"] < 1e-9  # the known A, exactly
     assert models["hamiltonian-force"]["momenta"] == "velocity"
+    # the weighted second pass starts from the force-space network, with its weights
+    second = models["hamiltonian-weighted"]
+    config = json.loads((quick_run / "velocity" / "task5" / "train-100Hz-hamiltonian-weighted"
+                         / "run" / "config.json").read_text())["train"]
+    assert config["init"].endswith("train-100Hz-hamiltonian-force/run")
+    assert config["accel_weights"] == second["accel_weights"] and len(second["accel_weights"]) == 6
+    assert config["accel_space"] == "force"
     whats = [t["what"] for t in study["results"]["targets"]]
     assert any("in force space, prediction error vs the Lagrangian network in force space" in w
                for w in whats)

@@ -280,6 +280,30 @@ def test_force_space_errors_are_mass_weighted_acceleration_errors(kind):
                                jnp.sum((xdot0 - jnp.concatenate([x0[:, 2:], qdd], 1))**2, 1))
     with pytest.raises(UserError, match="space: expected one of"):
         accel_errors(model, pairs, "torque")
+    # per-coordinate weights: each coordinate of the force residual times its weight
+    w = jnp.asarray([0.5, 3.0])
+    np.testing.assert_allclose(accel_errors(model, pairs, "force", w),
+                               jnp.sum((want * w) ** 2, axis=1), rtol=1e-10)
+
+
+def test_force_weights_even_out_the_inertial_forces():
+    """force_weights: mean(s) / s_i, s_i the rms of the model's M̂ q̈, so w_i s_i is the same for
+    every coordinate (and the weights average... to mean(s) times the mean of 1 / s)."""
+    from softpinn.learn.losses import _mass_times, force_weights
+
+    for kind in ("lagrangian", "hamiltonian"):
+        cfg = ModelConfig(kind=kind, n=3, m=1, state_kind="velocity")
+        model = make_model(cfg, key=jax.random.PRNGKey(5))
+        rng = np.random.default_rng(1)
+        q = rng.normal(size=(200, 3))
+        qdd = rng.normal(size=(200, 3)) * np.array([1.0, 10.0, 0.1])
+        w = force_weights(model, q, qdd)
+        f = jax.vmap(lambda a, b: _mass_times(model, a, b))(jnp.asarray(q), jnp.asarray(qdd))
+        s = np.sqrt(np.mean(np.asarray(f) ** 2, axis=0))
+        np.testing.assert_allclose(w * s, s.mean(), rtol=1e-12)
+        assert w[1] < w[0] < w[2]
+    with pytest.raises(UserError, match="inertial force M̂ q̈ is 0"):
+        force_weights(model, q, np.zeros_like(qdd))
 
 
 def test_force_space_refusals():
@@ -300,7 +324,16 @@ def test_force_space_refusals():
               accel_labels="differences", momenta="data", accel_space="force"),
          "or a hamiltonian one on velocities"),
         (dict(model=lag, loss="accel", accel_space="torque"), "accel_space: expected one of"),
+        (dict(model=lag, loss="accel", accel_space="force", accel_weights=(1.0,)),
+         r"accel_weights: expected 2 finite numbers > 0 \(one per coordinate\), got \(1.0,\)"),
+        (dict(model=lag, loss="accel", accel_space="force", accel_weights=(1.0, -2.0)),
+         "accel_weights: expected 2 finite numbers > 0"),
+        (dict(model=lag, loss="accel", accel_weights=(1.0, 2.0)),
+         "accel_weights: the weights are for accel_space 'force'"),
     ]
+    ok = TrainConfig(model=lag, loss="accel", accel_space="force", accel_weights=[1, 2.5])
+    assert ok.accel_weights == (1.0, 2.5)
+    assert TrainConfig.from_dict(ok.to_dict()).accel_weights == (1.0, 2.5)
     for kw, message in cases:
         with pytest.raises(UserError, match=message):
             TrainConfig(**kw)
@@ -332,3 +365,32 @@ def test_known_a_hamiltonian_from_velocities_in_force_space_recovers_msd(tmp_pat
     # measured: M⁻¹ 3.5e-2, D 1.9e-2, G 3.9e-2 (the same in acceleration space: 2.2e-2,
     # 1.9e-2, 1.7e-2; with A learned, velocity data leave M⁻¹ 56 % off: docs/velocity.md)
     assert max(errors.values()) < 6e-2, errors
+    # a second pass weighted by the first's inertial forces (--accel-weights-from): the config
+    # holds the weights of learn.losses.force_weights, and a run starts from them
+    from softpinn.learn.data import difference_accelerations, load_dataset
+    from softpinn.learn.losses import force_weights
+
+    second = ["train", str(data), "--model", "hamiltonian", "--momenta", "velocity",
+              "--known-input", str(tmp_path / "A.json"), "--loss", "accel",
+              "--accel-labels", "differences", "--accel-space", "force",
+              "--mass", "16", "1", "--potential", "16", "1", "--damping-form", "constant",
+              "--epochs", "2", "--test-trajectories", "3", "--quiet",
+              "--init", str(tmp_path / "run")]
+    assert main([*second, "--accel-weights-from", str(tmp_path / "run"),
+                 "--out", str(tmp_path / "run2")]) == 0, capsys.readouterr().err
+    d = load_dataset(data)
+    rows = np.concatenate([d.indices(k) for k in (0, 1, 2)])
+    want = force_weights(run.model, d.q[rows], difference_accelerations(d)[rows])
+    got = json.loads((tmp_path / "run2" / "config.json").read_text())["train"]["accel_weights"]
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    for extra, message in (
+            (["--accel-weights", "1", "1", "--accel-weights-from", str(tmp_path / "run"),
+              "--out", str(tmp_path / "run3")], "give --accel-weights or --accel-weights-from"),
+            (["--accel-weights-from", str(tmp_path / "run"), "--resume", "--out",
+              str(tmp_path / "run2")], "--accel-weights-from: give it when a run starts"),
+            (["--accel-weights", "1", "--out", str(tmp_path / "run4")],
+             "--accel-weights: expected 2 finite numbers > 0")):
+        capsys.readouterr()
+        assert main([*second, *extra]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], err

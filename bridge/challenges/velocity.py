@@ -61,14 +61,22 @@ MODELS = (("lagrangian", "lagrangian", "Lagrangian (eq. 6)"),
           ("hamiltonian-known", "hamiltonian", "Hamiltonian from q̇, A known"),
           ("lagrangian-force", "lagrangian", "Lagrangian, A known, eq. 10 in force space"),
           ("hamiltonian-force", "hamiltonian",
-           "Hamiltonian from q̇, A known, eq. 10 in force space"))
+           "Hamiltonian from q̇, A known, eq. 10 in force space"),
+          ("hamiltonian-weighted", "hamiltonian",
+           "the same, a second pass weighted by its inertial forces"))
 #: The force-space pair (``softpinn train --accel-space force``): eq. 10 as ‖M̂ (q̈ - q̂̈)‖², linear
 #: in the networks' M, D, G, with the true A(q) fixed (known actuator model, which pins the scale
 #: velocity data leave open) and a constant D (the arms' damping is constant); nothing of the
 #: file's momenta is used (no ``mass_init``). Their own budget, the same for both: AdamW
 #: epochs, learning rate and batch size (None: the plan's); the quick form takes the quick
 #: budget. Every variant of :data:`VARIANTS` trains the pair.
-FORCE_MODELS = ("lagrangian-force", "hamiltonian-force")
+FORCE_MODELS = ("lagrangian-force", "hamiltonian-force", "hamiltonian-weighted")
+#: The weighted second pass (``softpinn train --init RUN --accel-weights-from RUN``): from the
+#: force-space Hamiltonian network, each coordinate of the force residual weighted by
+#: mean(s) / s_i, s_i the rms of that network's M̂ q̈ (:func:`learn.losses.force_weights`), so
+#: the light segment's small forces count as much as the heavy one's; its own epochs and lr.
+WEIGHTED_BUDGET = {"epochs": 750, "lr": 3e-3}
+WEIGHTED_QUICK = {"epochs": 10, "lr": 3e-3}
 FORCE_BUDGETS: dict[str, dict[str, Any]] = {
     "task4": {"epochs": 1500, "lr": 1e-2, "batch_size": 64},
     "task5": {"epochs": 1500, "lr": 1e-2, "batch_size": 64},
@@ -140,6 +148,15 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
         from ..exact.serialize import spec_known_input
 
         mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
+    weights = None
+    if m.get("weights_from"):  # the weighted second pass: from that run, with its weights
+        from ...learn.data import difference_accelerations
+        from ...learn.losses import force_weights
+        from ...learn.train import load_run
+
+        rows = np.concatenate([data.indices(int(k)) for k in f["train"]])
+        weights = tuple(float(w) for w in force_weights(
+            load_run(m["weights_from"]).model, data.q[rows], difference_accelerations(data)[rows]))
     tc = TrainConfig(
         model=mc, epochs=int(m["epochs"]), batch_size=m.get("batch_size", plan.batch_size),
         lr=float(m["lr"]),
@@ -148,6 +165,7 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
         input_hold=str(m["input_hold"]), loss=str(m.get("loss", "pair")),
         accel_labels=str(m.get("accel_labels", "recorded")),
         accel_space=str(m.get("accel_space", "acceleration")),
+        accel_weights=weights, init=m.get("weights_from"),
         loss_weight=float(m.get("loss_weight", 1.0)),
         eval_every=max(1, int(m["epochs"]) // 25), checkpoint_every=max(1, int(m["epochs"])),
         momenta="velocity" if kind == "hamiltonian" else "auto",
@@ -155,7 +173,7 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
     t0 = time.perf_counter()
     res = train(data, tc, folder / "run", progress=progress, force=True)
     return {"run": str(folder / "run"), "metrics": res.metrics, "config": res.config.to_dict(),
-            "wall_s": time.perf_counter() - t0}
+            "wall_s": time.perf_counter() - t0, "accel_weights": weights}
 
 
 def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
@@ -215,6 +233,7 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
 
     data = load_dataset(files["physics"]["path"])
     out: dict[str, Any] = {}
+    runs: dict[str, str] = {}  # name -> its run folder (the weighted pass starts from one)
     for name, kind, _label in MODELS:
         m = variant_model(plan, variant, kind, files)
         if name == "hamiltonian-rk4":
@@ -226,6 +245,12 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
             continue
         if name in FORCE_MODELS:
             m = force_model(m, task, quick)
+        if name == "hamiltonian-weighted":
+            if "hamiltonian-force" not in runs:
+                continue
+            b = WEIGHTED_QUICK if quick else WEIGHTED_BUDGET
+            m = {**m, "epochs": int(b["epochs"]), "lr": float(b["lr"]),
+                 "weights_from": runs["hamiltonian-force"]}
         known = name == "hamiltonian-known" or name in FORCE_MODELS
         settings = {"plan": plan.to_dict(), "variant": variant.name, "model": m, "kind": kind}
         if known:
@@ -234,6 +259,7 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
         trained = stages.run(f"train-{tag}", settings,
                              lambda f, k=kind, mm=m, kn=known: _train(
                                  spec, plan, k, mm, files, f, progress, known=kn))
+        runs[name] = trained["run"]
         pred = stages.run(f"predict-{tag}", {**settings, "max_step": PREDICT_MAX_STEP},
                           lambda f, t=trained: _predict(plan, files, t, f))
         mats = stages.run(
@@ -253,6 +279,7 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress) -> di
             "momenta": trained["config"].get("momenta"),
             "state": trained["config"]["model"]["state_kind"],
             "accel_space": trained["config"].get("accel_space", "acceleration"),
+            "accel_weights": trained.get("accel_weights"),
             "lr": float(m["lr"]),
         }
     return out
@@ -317,12 +344,14 @@ def _figure(results: dict[str, Any], path: Path) -> None:
                              constrained_layout=True)
     x = np.arange(len(COLUMNS))
     colors = {"lagrangian": "C0", "hamiltonian": "C3", "hamiltonian-rk4": "C1",
-              "hamiltonian-known": "C2", "lagrangian-force": "C9", "hamiltonian-force": "C4"}
+              "hamiltonian-known": "C2", "lagrangian-force": "C9", "hamiltonian-force": "C4",
+              "hamiltonian-weighted": "C6"}
     short = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian\nfrom q̇",
              "hamiltonian-rk4": "Hamiltonian\nfrom q̇, eq. 8",
              "hamiltonian-known": "Hamiltonian\nfrom q̇, A known",
              "lagrangian-force": "Lagrangian,\nforce space",
-             "hamiltonian-force": "Hamiltonian\nfrom q̇,\nforce space"}
+             "hamiltonian-force": "Hamiltonian\nfrom q̇,\nforce space",
+             "hamiltonian-weighted": "the same,\nweighted"}
     for j, (task, variant) in enumerate(panels):
         models = results[task]["variants"][variant]
         present = [(name, label) for name, _kind, label in MODELS if name in models]
@@ -397,23 +426,30 @@ def _force_targets(variant: str, models: dict[str, Any]) -> list[dict[str, Any]]
     """The force-space pair's targets on one task 5 variant: the Hamiltonian network's
     prediction error against the Lagrangian network's of the same budget, and its M, D, G (A is
     the known one) and, apart, its M⁻¹ within :data:`TARGET_PERCENT` directly."""
-    h = models.get("hamiltonian-force")
-    if h is None:
-        return []
     out = []
-    lg = models.get("lagrangian-force")
+    for name, label in (("hamiltonian-force", "Hamiltonian-from-q̇ in force space"),
+                        ("hamiltonian-weighted", "Hamiltonian-from-q̇ in force space, weighted")):
+        if name in models:
+            out += _force_model_targets(variant, models[name], models.get("lagrangian-force"),
+                                        label)
+    return out
+
+
+def _force_model_targets(variant: str, h: dict[str, Any], lg: dict[str, Any] | None,
+                         label: str) -> list[dict[str, Any]]:
+    out = []
     if lg is not None:
         eh, el = h["prediction_error"], lg["prediction_error"]
         ok = (eh is not None and el is not None and math.isfinite(eh) and math.isfinite(el)
               and eh <= el)
-        out.append({"what": f"task5 {variant}: Hamiltonian-from-q̇ in force space, prediction "
+        out.append({"what": f"task5 {variant}: {label}, prediction "
                             "error vs the Lagrangian network in force space", "target":
                             "no worse", "measured": f"{_fmt(eh)} vs {_fmt(el)}", "met": bool(ok)})
     mt = h["matrices"]
     for cols in (("M", "D", "G"), ("M_inv",)):
         vals = [mt[c] for c in cols if mt.get(c) is not None and math.isfinite(mt[c])]
         worst = max(vals) if len(vals) == len(cols) else None
-        out.append({"what": f"task5 {variant}: Hamiltonian-from-q̇ in force space, "
+        out.append({"what": f"task5 {variant}: {label}, "
                             + ", ".join(LABELS[c] for c in cols) + " direct"
                             + (" (worst)" if len(cols) > 1 else ""),
                     "target": f"≤ {TARGET_PERCENT:g} %", "measured": f"{_fmt(worst)} %",
@@ -443,7 +479,9 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         "in force space (`softpinn train --accel-space force`: ‖M̂ (q̈ − q̂̈)‖² = ‖M̂ q̈ + Ĉ q̇ "
         "+ D̂ q̇ + Ĝ − A u‖², linear in the networks' M, D, G, where the acceleration space "
         "puts M̂⁻¹ in front of every term), q̈ from central differences of q̇, nothing taken "
-        "from the file's momenta.", "",
+        "from the file's momenta; then the Hamiltonian network again from that model, each "
+        "coordinate of the force residual weighted by mean(s) / s_i, s_i the rms of the "
+        "model's M̂ q̈ (`--init RUN --accel-weights-from RUN`).", "",
         "| task | data | network | loss | state | " + " | ".join(LABELS[c] for c in COLUMNS)
         + " | α | after α: M, D, A, G | test loss | prediction error | train time |",
         "|---" * (len(COLUMNS) + 10) + "|",
@@ -471,6 +509,11 @@ def _markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float)
         if force is not None:
             budgets.append(f"{task} in force space: {force['epochs']} AdamW epochs at lr "
                            f"{force['lr']:g}, the same training pairs")
+        second = next((v["hamiltonian-weighted"] for v in r["variants"].values()
+                       if "hamiltonian-weighted" in v), None)
+        if second is not None:
+            budgets.append(f"{task}, the weighted second pass: {second['epochs']} more epochs "
+                           f"at lr {second['lr']:g}")
     staged = sum(r.get("stage_seconds", 0.0) for r in results.values())
     lines += ["Budgets (both networks alike): " + "; ".join(budgets)
               + f". Wall time of this call {seconds:.0f} s; its stages took {staged:.0f} s "

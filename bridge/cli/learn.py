@@ -70,6 +70,8 @@ def add_setting_flags(parser, *, skip=_CUSTOM, title=str, split_flags=_split_fla
             kw = {"default": f.default, "help": f.metadata["help"].replace("%", "%%")}
             if f.name == "devices":
                 kw.update(type=_devices, metavar="N|all")
+            elif typing.get_origin(hint) is tuple:  # accel_weights: n numbers
+                kw.update(type=float, nargs="+", metavar="W")
             elif f.metadata.get("choices"):
                 kw["choices"] = f.metadata["choices"]
             else:
@@ -133,6 +135,10 @@ def register(subparsers) -> None:
     p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
     add_setting_flags(p)
+    p.add_argument("--accel-weights-from", default=None, metavar="RUN",
+                   help="set --accel-weights from RUN's trained model: mean(s) / s_i, s_i the "
+                   "rms of its inertial force M̂ q̈ over the training data (a second pass in "
+                   "force space that weighs each coordinate by its own force scale)")
     add_network_flags(p)
     hosts = p.add_argument_group("several processes (hosts)")
     hosts.add_argument("--coordinator", default=None, metavar="HOST:PORT",
@@ -303,6 +309,9 @@ def cmd_train(args) -> int:
     if args.resume:
         from pathlib import Path
 
+        if args.accel_weights_from is not None:
+            raise UserError("--accel-weights-from: give it when a run starts (the weights are "
+                            "stored in the run's config.json), not with --resume")
         stored = read_json(Path(args.out) / "config.json")
         if not isinstance(stored, dict) or "train" not in stored:
             raise UserError(f"--resume: {Path(args.out) / 'config.json'} is not a softpinn run")
@@ -317,6 +326,11 @@ def cmd_train(args) -> int:
         # the training split as train() draws it: --mass-init data reads no test trajectory
         train_ids, _ = split_trajectories(data, test=test, seed=args.split_seed)
         mc = _model_config(args, data.n, data.m, data, train_ids)
+        if args.accel_weights_from is not None:
+            if args.accel_weights is not None:
+                raise UserError("give --accel-weights or --accel-weights-from, not both")
+            args.accel_weights = _weights_from(args.accel_weights_from, data, train_ids,
+                                               args.accel_labels)
         config = TrainConfig(
             model=mc, test_trajectories=test,
             **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
@@ -357,6 +371,26 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:
+    """``--accel-weights-from RUN``: :func:`learn.losses.force_weights` of RUN's best model over
+    the training trajectories' samples, with q̈ labels as ``--accel-labels`` takes them."""
+    import numpy as np
+
+    from softpinn.learn.data import difference_accelerations
+    from softpinn.learn.errors import UserError
+    from softpinn.learn.losses import force_weights
+    from softpinn.learn.train import load_run
+
+    run = load_run(run_dir)
+    if run.model_config.kind not in ("lagrangian", "hamiltonian") or (
+            run.model_config.n != data.n):
+        raise UserError(f"--accel-weights-from {run_dir}: needs a lagrangian or hamiltonian run "
+                        f"of the data's n = {data.n} coordinates")
+    rows = np.concatenate([data.indices(int(k)) for k in train_ids])
+    qdd = difference_accelerations(data) if labels == "differences" else data.qdd
+    return [float(w) for w in force_weights(run.model, data.q[rows], qdd[rows])]
+
+
 def _warn(message: str) -> None:
     """A setting warning of the library, naming the flag instead of the field."""
     from tqdm.auto import tqdm
@@ -370,7 +404,7 @@ def _warn(message: str) -> None:
 
 #: train flags that are not settings of the run
 _RUN_FLAGS = frozenset({"out", "resume", "force", "quiet", "json", "given", "coordinator",
-                        "num_processes", "process_id", "cluster"})
+                        "num_processes", "process_id", "cluster", "accel_weights_from"})
 _MODEL_FLAGS = frozenset({"model", "width", "depth", "activation", "damping_form", "input_form",
                           "eps", "mass_init", "state", "float32", "known_input", *NETS})
 

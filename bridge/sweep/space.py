@@ -35,6 +35,8 @@ NOT_SWEPT = {
     "split_seed": "the trials are ranked by their test loss, so they share one test split",
     "seeds": "a trial trains one seed; give seeds=K (--seeds K) to train every combination "
              "with K seeds, one trial each",
+    "accel_weights": "it is one number per coordinate; fix it for every trial "
+                     "(--accel-weights W ...)",
 }
 
 
