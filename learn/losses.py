@@ -173,6 +173,17 @@ def force_weights(model, q, qdd) -> np.ndarray:
     return s.mean() / s
 
 
+def data_force_weights(model, data, traj_ids, labels: str = "differences") -> tuple[float, ...]:
+    """:func:`force_weights` over every sample of trajectories ``traj_ids`` of a
+    :class:`learn.data.Dataset`, with q̈ labels as loss accel takes them (``labels``
+    "recorded": the file's qdd; "differences": central differences of its q̇)."""
+    from .data import difference_accelerations
+
+    rows = np.concatenate([data.indices(int(k)) for k in traj_ids])
+    qdd = difference_accelerations(data) if labels == "differences" else data.qdd
+    return tuple(float(w) for w in force_weights(model, data.q[rows], qdd[rows]))
+
+
 def rollout_errors(
     model, windows: Windows, *, horizon: int, weight=1.0, substeps=1, input_hold="constant"
 ):

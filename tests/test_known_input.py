@@ -298,7 +298,7 @@ def test_force_weights_even_out_the_inertial_forces():
         q = rng.normal(size=(200, 3))
         qdd = rng.normal(size=(200, 3)) * np.array([1.0, 10.0, 0.1])
         w = force_weights(model, q, qdd)
-        f = jax.vmap(lambda a, b: _mass_times(model, a, b))(jnp.asarray(q), jnp.asarray(qdd))
+        f = jax.vmap(lambda a, b, mm=model: _mass_times(mm, a, b))(jnp.asarray(q), jnp.asarray(qdd))
         s = np.sqrt(np.mean(np.asarray(f) ** 2, axis=0))
         np.testing.assert_allclose(w * s, s.mean(), rtol=1e-12)
         assert w[1] < w[0] < w[2]

@@ -374,11 +374,8 @@ def cmd_train(args) -> int:
 def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:
     """``--accel-weights-from RUN``: :func:`learn.losses.force_weights` of RUN's best model over
     the training trajectories' samples, with q̈ labels as ``--accel-labels`` takes them."""
-    import numpy as np
-
-    from softpinn.learn.data import difference_accelerations
     from softpinn.learn.errors import UserError
-    from softpinn.learn.losses import force_weights
+    from softpinn.learn.losses import data_force_weights
     from softpinn.learn.train import load_run
 
     run = load_run(run_dir)
@@ -386,9 +383,7 @@ def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:
             run.model_config.n != data.n):
         raise UserError(f"--accel-weights-from {run_dir}: needs a lagrangian or hamiltonian run "
                         f"of the data's n = {data.n} coordinates")
-    rows = np.concatenate([data.indices(int(k)) for k in train_ids])
-    qdd = difference_accelerations(data) if labels == "differences" else data.qdd
-    return [float(w) for w in force_weights(run.model, data.q[rows], qdd[rows])]
+    return list(data_force_weights(run.model, data, train_ids, labels))
 
 
 def _warn(message: str) -> None:
