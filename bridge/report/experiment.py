@@ -393,6 +393,6 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
 
 def _differences(plan, prep: str) -> str:
     """`` with `--differences K` `` where preprocessing ``prep`` takes differences of order K
-    other than the default 2 (plans written before the option have none)."""
-    order = (getattr(plan, "differences", None) or {}).get(prep, 2)
+    other than the default 2."""
+    order = plan.differences[prep]
     return f" with `--differences {order}`" if order != 2 else ""
