@@ -10,7 +10,14 @@ from typing import Any
 import numpy as np
 
 from ..report.figsave import figure_dpi
-from .velocity import COLUMNS, FORCE_MODELS, LABELS, MODELS, PREDICT_MAX_STEP, TARGET_PERCENT
+from .velocity_settings import (
+    COLUMNS,
+    FORCE_MODELS,
+    LABELS,
+    MODELS,
+    PREDICT_MAX_STEP,
+    TARGET_PERCENT,
+)
 
 
 def _fmt(x, digits: int = 3) -> str:
