@@ -108,6 +108,40 @@ def test_velocity_study_trains_the_force_space_pair(quick_run):
     assert "Lagrangian, A known, eq. 10 in force space" in study["markdown"]
 
 
+def test_velocity_study_trains_on_excited_data(quick_run):
+    """Challenge 3: the force-space networks again on data whose inputs reach the light
+    segment's corner frequency, and every data set's inertial share along the lightest
+    directions of M, in the results and the report."""
+    from softpinn.bridge.challenges.velocity_settings import EXCITED_FREQUENCY, FORCE_MODELS
+    from softpinn.learn.data import load_dataset
+
+    study = json.loads((quick_run / "velocity" / "study.json").read_text())["study"]
+    variants = study["results"]["tasks"]["task5"]["variants"]
+    excited = variants["100Hz-excited"]
+    assert excited["input_frequency_high"] == EXCITED_FREQUENCY
+    assert set(FORCE_MODELS) <= set(excited) and "lagrangian" not in excited
+    folder = quick_run / "velocity" / "task5"
+    data = load_dataset(folder / "data-excited" / "100Hz-physics.npz")
+    plain = load_dataset(folder / "data" / "100Hz-physics.npz")
+
+    def highest(d):
+        return max(f for s in d.meta["signals"] for f in s["frequency"])
+
+    assert 3.0 < highest(data) <= EXCITED_FREQUENCY and highest(plain) <= 3.0
+    assert data.q.shape == plain.q.shape  # the same trajectories, otherwise
+    config = json.loads((folder / "train-100Hz-excited-hamiltonian-weighted" / "run"
+                         / "config.json").read_text())["train"]
+    assert config["init"].endswith("train-100Hz-excited-hamiltonian-force/run")
+    for models in variants.values():
+        ex = models["excitation"]
+        assert len(ex["inertia_over_damping"]) == 6
+        assert ex["eigenvalue"] == sorted(ex["eigenvalue"])
+    whats = [t["what"] for t in study["results"]["targets"]]
+    assert any(w.startswith("task5 100Hz, inputs to 15 Hz: ") for w in whats)
+    assert "inertia / damping along them" in study["markdown"]
+    assert "| task5 | 100Hz, inputs to 15 Hz |" in study["markdown"]
+
+
 def test_a_second_call_reuses_the_finished_studies(quick_run, capsys):
     before = (quick_run / "results.json").read_text()
     assert main(["reproduce", "challenges", "--quick", "--out", str(quick_run)]) == 0

@@ -37,6 +37,12 @@ def _rows(results: dict[str, Any]):
                     yield task, variant, name, label, models[name]
 
 
+def _variant_label(variant: str, models: dict[str, Any]) -> str:
+    """The data set's name; the excited one says how it was excited."""
+    f = models.get("input_frequency_high")
+    return variant if f is None else f"{variant.removesuffix('-excited')}, inputs to {f:g} Hz"
+
+
 def figure(results: dict[str, Any], path: Path) -> None:
     import matplotlib
 
@@ -44,8 +50,9 @@ def figure(results: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     panels = [(t, v) for t, r in results.items() for v in r["variants"]]
+    # one y scale per row, so that bars of different data sets compare at a glance
     fig, axes = plt.subplots(2, len(panels), figsize=(4.6 * len(panels), 6.6), squeeze=False,
-                             constrained_layout=True)
+                             sharey="row", constrained_layout=True)
     x = np.arange(len(COLUMNS))
     colors = {"lagrangian": "C0", "hamiltonian": "C3", "hamiltonian-rk4": "C1",
               "hamiltonian-known": "C2", "lagrangian-force": "C9", "hamiltonian-force": "C4",
@@ -70,8 +77,9 @@ def figure(results: dict[str, Any], path: Path) -> None:
         ax.set_yscale("log")
         ax.set_xticks(range(len(present)), [short[name] for name, _ in present], fontsize=7,
                       rotation=30, ha="right", rotation_mode="anchor")
-        ax.set_ylabel(f"rollout error, mean ‖q − q̂‖² over {models['lagrangian']['horizon_s']:g} s")
-        ax.set_title(f"{task}, {variant}: rollout error (test)")
+        horizon = models[present[0][0]]["horizon_s"]
+        ax.set_ylabel(f"rollout error over {horizon:g} s\n(mean ‖q − q̂‖²)")
+        ax.set_title(f"{task}, {_variant_label(variant, models)}:\nrollout error (test)")
         ax = axes[1, j]
         width = 0.8 / len(present)
         for i, (name, label) in enumerate(present):
@@ -84,15 +92,18 @@ def figure(results: dict[str, Any], path: Path) -> None:
         ax.set_yscale("log")
         ax.set_xticks(x, [LABELS[c] for c in COLUMNS], fontsize=8)
         ax.set_ylabel("direct relative residual [%]")
-        ax.set_title(f"{task}, {variant}: learned vs true (no transform)")
+        ax.set_title(f"{task}, {_variant_label(variant, models)}:\nlearned vs true (no transform)")
     # one legend for every panel, below them (in a panel it covered the bars)
     handles, labels = {}, {}
     for ax in axes[1]:
         for h, lab in zip(*ax.get_legend_handles_labels(), strict=True):
             handles.setdefault(lab, h)
     labels = list(handles)
+    # as many columns as the figure's width holds (an entry is up to about 3.5 inches wide): a
+    # legend wider than the figure would push the panels off its edges
+    ncols = max(1, min(4, len(labels), int(fig.get_figwidth() / 3.5)))
     fig.legend([handles[k] for k in labels], labels, loc="outside lower center",
-               ncols=min(4, len(labels)), fontsize=8, frameon=False)
+               ncols=ncols, fontsize=8, frameon=False)
     fig.savefig(path, dpi=figure_dpi(300, fig))
     plt.close(fig)
 
@@ -105,6 +116,9 @@ def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
     if not r5:
         return out
     for variant, models in r5["variants"].items():
+        if "hamiltonian" not in models:  # the excited data: the force-space models alone
+            out += _force_targets(_variant_label(variant, models), models)
+            continue
         h, lg = models["hamiltonian"], models["lagrangian"]
         eh, el = h["prediction_error"], lg["prediction_error"]
         ok = (eh is not None and el is not None and math.isfinite(eh) and math.isfinite(el)
@@ -185,7 +199,10 @@ def markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) 
         "puts M̂⁻¹ in front of every term), q̈ from central differences of q̇, nothing taken "
         "from the file's momenta; then the Hamiltonian network again from that model, each "
         "coordinate of the force residual weighted by mean(s) / s_i, s_i the rms of the "
-        "model's M̂ q̈ (`--init RUN --accel-weights-from RUN`).", "",
+        "model's M̂ q̈ (`--init RUN --accel-weights-from RUN`). The data set marked \"inputs to "
+        "N Hz\": one rate's data again with every input's frequency drawn up to N Hz instead "
+        "of the task's (the same arm, trajectories, seed and budgets), where those three "
+        "networks alone train.", "",
         "| task | data | network | loss | state | " + " | ".join(LABELS[c] for c in COLUMNS)
         + " | α | after α: M, D, A, G | test loss | prediction error | train time |",
         "|---" * (len(COLUMNS) + 10) + "|",
@@ -194,6 +211,7 @@ def markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) 
         mt = e["matrices"]
         ar = mt["alpha_residual"]
         after = ", ".join(_fmt(ar.get(k), 2) for k in ("M", "D", "A", "G"))
+        variant = _variant_label(variant, results[task]["variants"][variant])
         lines.append(
             f"| {task} | {variant} | {label} | {e['loss']}"
             + (" (force space)" if e.get("accel_space") == "force" else "")
@@ -205,7 +223,7 @@ def markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) 
     lines += ["", f"![prediction error and direct matrix residuals]({figure})", ""]
     budgets = []
     for task, r in results.items():
-        first = next(iter(r["variants"].values()))["lagrangian"]
+        first = next(v["lagrangian"] for v in r["variants"].values() if "lagrangian" in v)
         budgets.append(f"{task}: {first['epochs']} AdamW epochs + {first['lbfgs_steps']} "
                        f"L-BFGS iterations on {r['samples'] or 'all'} training pairs")
         force = next((v[n] for v in r["variants"].values() for n in FORCE_MODELS if n in v),
@@ -222,6 +240,7 @@ def markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) 
     lines += ["Budgets (both networks alike): " + "; ".join(budgets)
               + f". Wall time of this call {seconds:.0f} s; its stages took {staged:.0f} s "
               "when they ran (reused ones included).", ""]
+    lines += _excitation_lines(results)
     lines += [
         "What the numbers can say: from (q, q̇) alone the network's M, D, G, A are fixed only "
         "up to the same transform P(q) as a Lagrangian network's; at the least up to one scale "
@@ -233,3 +252,30 @@ def markdown(results: dict[str, Any], quick: bool, figure: str, seconds: float) 
         lines = ["**Quick run**: tiny data and networks, a few epochs; not the results.", "",
                  *lines]
     return "\n".join(lines)
+
+
+def _excitation_lines(results: dict[str, Any]) -> list[str]:
+    """The inertial forces each data set shows along the true M's two lightest directions
+    (:func:`bridge.analysis.excitation.inertial_share`), the table that says where M⁻¹ can be
+    learned from."""
+    rows = []
+    for task, r in results.items():
+        for variant, models in r["variants"].items():
+            ex = models.get("excitation") if isinstance(models, dict) else None
+            if not ex:
+                continue
+            ratio = ", ".join(f"{100 * x:.3g} %" for x in ex["inertia_over_damping"][:2])
+            lam = ", ".join(f"{x:.2g}" for x in ex["eigenvalue"][:2])
+            rows.append(f"| {task} | {_variant_label(variant, models)} | {lam} | {ratio} |")
+    if not rows:
+        return []
+    return [
+        "Where M⁻¹ can be learned from: the inertial forces vᵀ M q̈ the training data show "
+        "along the two eigenvectors v of the true M with the smallest eigenvalues (lightest "
+        "first; they hold nearly all of ‖M⁻¹‖), as a fraction of the damping forces vᵀ D q̇ "
+        "there (rms over the samples, the true model's q̈). Where that fraction is a few "
+        "percent the arm moves quasi-statically in that direction and no loss pins its mass "
+        "(nor M⁻¹) better than the other forces are fitted; the excited data set's inputs "
+        "reach the light segment's corner frequency.", "",
+        "| task | data | M's two smallest eigenvalues (median) | inertia / damping along them |",
+        "|---|---|---|---|", *rows, ""]

@@ -1,0 +1,54 @@
+"""How much a data set shows of the inertia in each direction of the true mass matrix.
+
+A network learns M(q) from the inertial forces M q̈ the data hold. In a direction where those are
+small beside the other forces of eq. 6 (the damping D q̇, the potential and input forces), M is
+weakly determined there, and so are M⁻¹ and every product with it, whatever the loss. A light
+segment is such a direction: Task 5's second segment bends with a mass about 100 times smaller
+than the first's (the two smallest eigenvalues of M, which hold nearly all of ‖M⁻¹‖), so it is
+overdamped (d/m about 185 1/s) and inputs well below that corner frequency move it
+quasi-statically, D q̇ ≈ A u - G, with M q̈ a few percent of D q̇.
+
+:func:`inertial_share` measures this on a data set with the true model: for each eigenvector v
+of M(q) (lightest first), the rms over the samples of the inertial force vᵀ M q̈ against the
+damping force vᵀ D q̇ and the rest vᵀ (A u - G - C q̇). A ratio of inertia to damping of a few
+percent says the data cannot pin the mass in that direction to better than a few ×10 percent of
+the other forces' errors; exciting the arm near the corner frequency raises it (RESULTS.md,
+challenge 3).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["inertial_share"]
+
+
+def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
+    """Per eigen-direction of the true M(q) (smallest eigenvalue first): the median eigenvalue
+    and the rms over the samples of the inertial, damping and remaining forces along it, and the
+    ratio of inertia to damping.
+
+    ``q``, ``qd`` (N, n) and ``u`` (N, m) are samples of a data set; q̈ is the true model's at
+    them (eq. 6), so the numbers describe the motion the data hold, not any label noise.
+    """
+    q, qd, u = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, u))
+    if not (len(q) == len(qd) == len(u)) or len(q) == 0:
+        raise ValueError(f"q, qd, u: expected the same number N > 0 of rows, got "
+                         f"{len(q)}, {len(qd)}, {len(u)}")
+    M = np.asarray(true_model.M(q))
+    D = np.asarray(true_model.D(q))
+    qdd = np.asarray(true_model.qdd(q, qd, u))
+    lam, V = np.linalg.eigh(M)  # ascending: the lightest direction first
+    inertial = np.einsum("nji,njk,nk->ni", V, M, qdd)
+    damping = np.einsum("nji,njk,nk->ni", V, D, qd)
+    # eq. 6 along v: vᵀ M q̈ + vᵀ D q̇ = vᵀ (A u - G - C q̇), so the rest is their sum
+    rest = inertial + damping
+
+    def rms(a):
+        return np.sqrt(np.mean(a * a, axis=0))
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = rms(inertial) / rms(damping)
+    return {"eigenvalue": np.median(lam, axis=0).tolist(),
+            "inertial": rms(inertial).tolist(), "damping": rms(damping).tolist(),
+            "rest": rms(rest).tolist(), "inertia_over_damping": ratio.tolist()}
