@@ -36,6 +36,10 @@ def test_task1_closed_form():
     np.testing.assert_allclose(out["rest"], rms(q @ K.T), rtol=1e-9)  # A u - G - C q̇ = -K q
     np.testing.assert_allclose(out["inertia_over_damping"], rms(inertial) / rms(damping),
                                rtol=1e-9)
+    # corner frequencies vᵀBv / (2π λ): B's diagonal 0.3 over the masses 1.0 and 1.8
+    np.testing.assert_allclose(out["corner_hz"], [0.3 / (2 * np.pi), 0.3 / (2 * np.pi * 1.8)],
+                               rtol=1e-12)
+    np.testing.assert_allclose(out["vectors"], np.eye(2), atol=1e-12)
 
 
 def test_rows_must_agree():
@@ -43,3 +47,42 @@ def test_rows_must_agree():
                                          r"got 3, 2, 3"):
         inertial_share(TrueModel(load_spec("task1")), np.zeros((3, 2)), np.zeros((2, 2)),
                        np.zeros((3, 0)))
+
+
+def test_cli_table_json_and_refusals(tmp_path, capsys):
+    """`softpinn excitation DATA MODEL` on task 1's system: the JSON holds inertial_share's
+    numbers for the data's samples, the table one row per direction and a closing line; every
+    mistake is one line with exit status 2."""
+    import json
+
+    from datagen import make_dataset
+
+    from softpinn.bridge.analysis.forces import data_samples
+    from softpinn.bridge.cli import main
+    from softpinn.bridge.cli.excitation import WEAK
+    from softpinn.learn.data import load_dataset
+
+    path = make_dataset(tmp_path / "msd.npz", forced=False, trajectories=3, duration=3.0)
+    assert main(["excitation", str(path), "task1", "--samples", "50", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    q, qd, u, _ = data_samples(load_dataset(path), None, count=50, seed=0)
+    want = inertial_share(TrueModel(load_spec("task1")), q, qd, u)
+    for key, value in want.items():
+        np.testing.assert_allclose(got[key], value, rtol=1e-12)
+    assert got["samples"] == 50 and got["trajectories"] == [0, 1, 2]
+    assert main(["excitation", str(path), "task1", "--trajectories", "1"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("task1 on ") and "samples of 1 trajectory;" in lines[0]
+    assert len(lines) == 2 + 2 + 1 and lines[2].split()[0] == "1" and lines[3].split()[0] == "2"
+    one = data_samples(load_dataset(path), [1], count=2000, seed=0)[:3]
+    weak = min(inertial_share(TrueModel(load_spec("task1")), *one)["inertia_over_damping"]) < WEAK
+    assert lines[-1].startswith("weakly excited" if weak else "every direction shows")
+    for argv, message in (
+            ([str(tmp_path / "none.npz"), "task1"], "no such file"),
+            ([str(path), "task4"], "model has n=3 coordinates, the file has n=2"),
+            ([str(path), "task1", "--samples", "0"], "--samples: expected a positive count"),
+            ([str(path), "task1", "--trajectories", "7"], "[7] are not in the data set"),
+            ([str(path), "nomodel"], "unknown model 'nomodel'")):
+        assert main(["excitation", *argv]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0], (argv, err)

@@ -24,9 +24,10 @@ __all__ = ["inertial_share"]
 
 
 def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
-    """Per eigen-direction of the true M(q) (smallest eigenvalue first): the median eigenvalue
-    and the rms over the samples of the inertial, damping and remaining forces along it, and the
-    ratio of inertia to damping.
+    """Per eigen-direction of the true M(q) (smallest eigenvalue first): the median eigenvalue,
+    the median corner frequency vᵀDv / (2π vᵀMv) [Hz], the rms over the samples of the
+    inertial, damping and remaining forces along it, the ratio of inertia to damping, and
+    ``vectors[i]``: the median |component| of the i-th eigenvector per coordinate.
 
     ``q``, ``qd`` (N, n) and ``u`` (N, m) are samples of a data set; q̈ is the true model's at
     them (eq. 6), so the numbers describe the motion the data hold, not any label noise.
@@ -49,6 +50,11 @@ def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
 
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = rms(inertial) / rms(damping)
+        # the corner frequency (vᵀ D v) / (2π vᵀ M v): above it that direction moves by inertia,
+        # below it by damping (and springs)
+        corner = np.einsum("nji,njk,nki->ni", V, D, V) / (2 * np.pi * lam)
     return {"eigenvalue": np.median(lam, axis=0).tolist(),
+            "corner_hz": np.median(corner, axis=0).tolist(),
             "inertial": rms(inertial).tolist(), "damping": rms(damping).tolist(),
-            "rest": rms(rest).tolist(), "inertia_over_damping": ratio.tolist()}
+            "rest": rms(rest).tolist(), "inertia_over_damping": ratio.tolist(),
+            "vectors": np.median(np.abs(V), axis=0).T.tolist()}

@@ -16,6 +16,7 @@ import sys
 COMMAND_MODULES = (
     "softpinn.bridge.cli.symbolic",
     "softpinn.bridge.cli.data",
+    "softpinn.bridge.cli.excitation",
     "softpinn.bridge.cli.learn",
     "softpinn.bridge.cli.bridge",
     "softpinn.bridge.cli.show",

@@ -1,0 +1,96 @@
+"""``softpinn excitation DATA MODEL``: how much of the arm's inertia a data set shows, per
+direction of the true mass matrix (:func:`bridge.analysis.excitation.inertial_share`;
+docs/challenges.md, "Data that show the mass")."""
+
+from __future__ import annotations
+
+import json
+
+from ..errors import UserError
+
+#: Below this ratio of inertial to damping forces a direction counts as weakly excited (task 5
+#: at the paper's inputs, 8-9 %: M⁻¹ 6-22 % off; at 25 %: 1.2-1.7 %, RESULTS.md).
+WEAK = 0.15
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "excitation",
+        help="how much of the arm's inertia a data set shows, per direction of M",
+        description=(
+            "Along each eigenvector of the true mass matrix M(q) (lightest first), the rms "
+            "over the data's samples of the inertial force M q̈, the damping force D q̇ and the "
+            "rest (A u - G - C q̇), with the true model's q̈ at the data's q, q̇, u. Where the "
+            "inertia is a few percent of the damping, the arm moves quasi-statically in that "
+            "direction and no training pins its mass there (nor M⁻¹, which the lightest "
+            "directions dominate): excite it near its corner frequency vᵀDv / (2π vᵀMv). "
+            "Before training, to check a recording or a simulated experiment design."
+        ),
+    )
+    p.add_argument("data", metavar="DATA.npz", help="dataset file (simulate or import)")
+    p.add_argument("model", metavar="MODEL", help="preset name or spec file of the arm")
+    p.add_argument("--trajectories", nargs="+", type=int, default=None, metavar="ID",
+                   help="use these trajectories (default: all)")
+    p.add_argument("--samples", type=int, default=2000,
+                   help="samples drawn from the data (seeded)")
+    p.add_argument("--json", action="store_true", help="print every number as one JSON object")
+    p.set_defaults(func=cmd_excitation)
+
+
+def cmd_excitation(args) -> int:
+    from softpinn.learn.data import load_dataset
+    from softpinn.symbolic.model import TrueModel
+    from softpinn.symbolic.spec import load_spec
+
+    from ..analysis.excitation import inertial_share
+    from ..analysis.forces import data_samples
+
+    spec = load_spec(args.model)
+    data = load_dataset(args.data, n=spec.n, m=spec.m)
+    if args.samples < 1:
+        raise UserError(f"--samples: expected a positive count, got {args.samples}")
+    q, qd, u, _ = data_samples(data, args.trajectories, count=args.samples, seed=0)
+    share = inertial_share(TrueModel(spec), q, qd, u)
+    ids = sorted(set(int(i) for i in data.traj)) if args.trajectories is None \
+        else sorted(set(args.trajectories))
+    if args.json:
+        print(json.dumps({"model": spec.name, "data": str(args.data), "samples": len(q),
+                          "trajectories": ids, "coordinates": list(spec.coordinate_names),
+                          **share}))
+        return 0
+    for line in _table(spec, share, args.data, len(q), len(ids)):
+        print(line)
+    return 0
+
+
+def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str]:
+    names = list(spec.coordinate_names)
+    lines = [f"{spec.name} on {path}: {samples} samples of {trajectories} trajector"
+             f"{'y' if trajectories == 1 else 'ies'}; directions of the true M(q), lightest first",
+             f"{'':3} {'mostly':<12} {'M eigenvalue':>12} {'corner':>9} {'inertia':>9} "
+             f"{'damping':>9} {'rest':>9} {'inertia/damping':>16}"]
+    for i, vec in enumerate(share["vectors"]):
+        order = sorted(range(len(vec)), key=lambda j: -vec[j])
+        mostly = ", ".join(names[j] for j in order[:2] if vec[j] >= 0.3) or names[order[0]]
+        ratio = share["inertia_over_damping"][i]
+        lines.append(
+            f"{i + 1:>3} {mostly:<12} {share['eigenvalue'][i]:>12.3g} "
+            f"{share['corner_hz'][i]:>6.3g} Hz {share['inertial'][i]:>9.3g} "
+            f"{share['damping'][i]:>9.3g} {share['rest'][i]:>9.3g} {_percent(ratio):>16}")
+    weak = [i + 1 for i, r in enumerate(share["inertia_over_damping"]) if r < WEAK]
+    if weak:
+        corner = max(share["corner_hz"][i - 1] for i in weak)
+        lines.append(
+            f"weakly excited: direction{'s' if len(weak) > 1 else ''} "
+            f"{', '.join(map(str, weak))} (inertia under {100 * WEAK:g} % of damping): the data "
+            f"fix M there only as well as the other forces are fitted; inputs reaching toward "
+            f"the corner frequency ({corner:.3g} Hz) show it (docs/challenges.md, \"Data that "
+            f"show the mass\")")
+    else:
+        lines.append(f"every direction shows its inertia (at least {100 * WEAK:g} % of its "
+                     f"damping)")
+    return lines
+
+
+def _percent(x: float) -> str:
+    return "-" if x != x else f"{100 * x:.3g} %"
