@@ -57,9 +57,9 @@ def test_cli_table_json_and_refusals(tmp_path, capsys):
 
     from datagen import make_dataset
 
+    from softpinn.bridge.analysis.excitation import WEAK
     from softpinn.bridge.analysis.forces import data_samples
     from softpinn.bridge.cli import main
-    from softpinn.bridge.cli.excitation import WEAK
     from softpinn.learn.data import load_dataset
 
     path = make_dataset(tmp_path / "msd.npz", forced=False, trajectories=3, duration=3.0)

@@ -133,8 +133,19 @@ def test_analyze_compares_forces_of_a_lagrangian_model_through_alpha(tmp_path):
     assert "| A u | 0 | — |" in text and "](forces.png)" in text
     fig = plot_forces(f)  # G, D q̇ and the net force; no inputs, so no panel of errors
     assert len(fig.axes) == 3
-    # without samples there is no force comparison
-    assert analyze(task1, ScaledTask1(), q, transforms=("alpha",)).forces is None
+    # the samples' excitation of the true M's directions (bridge.analysis.excitation), saved
+    # and reported with the coordinates' names
+    from softpinn.bridge.analysis.excitation import inertial_share
+
+    want = inertial_share(task1, qs, qd, np.zeros((30, 0)))
+    saved = json.loads(paths["analysis.json"].read_text())
+    for key, value in want.items():
+        np.testing.assert_allclose(saved["excitation"][key], value, rtol=1e-12)
+    assert "## What the data show of the inertia" in text
+    assert f"| 1 | {saved['meta']['coordinates'][0]} | 1 | " in text  # mass 1.0, the lighter
+    # without samples there is no force comparison, and no excitation
+    bare = analyze(task1, ScaledTask1(), q, transforms=("alpha",))
+    assert bare.forces is None and bare.excitation is None
 
 
 def test_acceleration_terms_are_m_inverse_times_the_forces():

@@ -65,6 +65,9 @@ def check_quick_pipeline(task, quick_runs):
     assert "Force terms along" in text and "| A u − G − D q̇ |" in text
     assert "Acceleration terms" in text and "| M⁻¹(A u − G − D q̇) |" in text
     variants = result.results["variants"]
+    # the training data's excitation of the true M's directions, once per data set
+    assert text.count("**What the training data show of the inertia.**") == len(variants)
+    assert "| direction | mostly | M eigenvalue | corner [Hz] |" in text
     assert {v: set(r["models"]) for v, r in variants.items()} == EXPECTED_MODELS[task]
     for vname, vres in variants.items():
         for kind, entry in vres["models"].items():

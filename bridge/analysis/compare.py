@@ -61,6 +61,7 @@ class AnalysisResult:
     forces: ForceComparison | None = None
     accelerations: ForceComparison | None = None
     sweeps: Sweeps | None = None
+    excitation: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """Every number, JSON-ready (NaN and inf as None)."""
@@ -78,6 +79,7 @@ class AnalysisResult:
                     None if self.accelerations is None else self.accelerations.to_dict()
                 ),
                 "sweeps": None if self.sweeps is None else self.sweeps.to_dict(),
+                "excitation": self.excitation,
             }
         )
 
@@ -245,9 +247,10 @@ def analyze(
         results[name] = fit_transform(name, true, learned, q, **dict(options.get(name, {})))
         if progress:
             progress(name, 3 + i, total)
-    forces = accelerations = None
+    forces = accelerations = excitation = None
     if samples is not None:
         forces, accelerations = _forces(true_model, learned_model, kind, results, samples)
+        excitation = _excitation(true_model, samples)
     spec = getattr(true_model, "spec", None)
     names = getattr(spec, "coordinate_names", None)
     units = None
@@ -269,8 +272,25 @@ def analyze(
         "learned_kind": kind,
         "transforms": list(transforms),
         "options": options,
+        "coordinates": None if names is None else list(names),
     }
-    return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations, sweeps)
+    return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations, sweeps,
+                          excitation)
+
+
+def _excitation(true_model, samples) -> dict[str, Any] | None:
+    """How much of the inertia the samples show per direction of the true M
+    (:func:`.excitation.inertial_share`); None where the true model is matrices already
+    evaluated rather than a model with M, D and q̈."""
+    if not all(callable(getattr(true_model, a, None)) for a in ("M", "D", "qdd")):
+        return None
+    from .excitation import inertial_share
+
+    q, qd, u = (np.asarray(a, dtype=np.float64) if a is not None else None
+                for a in samples[:3])
+    if u is None:
+        u = np.zeros((len(q), int(getattr(true_model, "m", 0) or 0)))
+    return inertial_share(true_model, q, qd, u)
 
 
 def _forces(true_model, learned_model, kind, results, samples):
@@ -421,6 +441,11 @@ def write_report(
             lines += force_lines(comp.to_dict())
             if name in paths:
                 lines += [f"![{comp.frame} terms, true against learned]({name})", ""]
+    if result.excitation is not None:
+        from .excitation import markdown_lines as excitation_lines
+
+        spec = result.meta.get("coordinates")
+        lines += excitation_lines(result.excitation, spec)
     if plots:
         lines += [
             "## Entries: true against learned (the direct comparison where it applies) and "

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["inertial_share"]
+__all__ = ["WEAK", "inertial_share", "markdown_lines", "mostly", "weak_directions"]
 
 
 def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
@@ -58,3 +58,54 @@ def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
             "inertial": rms(inertial).tolist(), "damping": rms(damping).tolist(),
             "rest": rms(rest).tolist(), "inertia_over_damping": ratio.tolist(),
             "vectors": np.median(np.abs(V), axis=0).T.tolist()}
+
+
+#: Below this ratio of inertial to damping forces a direction counts as weakly excited (task 5
+#: with the paper's inputs, 8-9 %: M⁻¹ 6-22 % off; at 25 %: 1.2-1.7 %, RESULTS.md).
+WEAK = 0.15
+
+
+def weak_directions(share: dict) -> list[int]:
+    """The 1-based directions whose inertia is under :data:`WEAK` of their damping."""
+    return [i + 1 for i, r in enumerate(share["inertia_over_damping"])
+            if r is not None and r < WEAK]
+
+
+def mostly(vector, names=None) -> str:
+    """The (at most two) coordinates a direction mostly moves: its components of at least 0.3,
+    largest first, else its largest one (``names``: the coordinates' names, else q0, q1, ...)."""
+    label = (lambda j: names[j]) if names is not None else (lambda j: f"q{j}")
+    order = sorted(range(len(vector)), key=lambda j: -vector[j])
+    return ", ".join(label(j) for j in order[:2] if vector[j] >= 0.3) or label(order[0])
+
+
+def markdown_lines(share: dict, names=None, heading: str | None = "## What the data show of "
+                   "the inertia") -> list[str]:
+    """The share as a Markdown table, one row per direction (lightest first), and what it says."""
+    lines = [heading, ""] if heading else []
+    lines += ["Along each eigenvector v of the true M(q), lightest first: the rms over the data's "
+              "samples of the inertial force vᵀ M q̈ (the true q̈) against the damping force "
+              "vᵀ D q̇, and the corner frequency vᵀDv / (2π vᵀMv). Where the inertia is a few "
+              "percent of the damping the arm moves quasi-statically in that direction and the "
+              "data fix its mass there (and M⁻¹, which the lightest directions dominate) only "
+              "as well as the other forces are fitted.", "",
+              "| direction | mostly | M eigenvalue | corner [Hz] | inertia | damping | "
+              "inertia / damping |", "|---|---|---|---|---|---|---|"]
+    for i, vec in enumerate(share["vectors"]):
+        r = share["inertia_over_damping"][i]
+        lines.append(f"| {i + 1} | {mostly(vec, names)} | {share['eigenvalue'][i]:.3g} | "
+                     f"{share['corner_hz'][i]:.3g} | {share['inertial'][i]:.3g} | "
+                     f"{share['damping'][i]:.3g} | {ratio_text(r)} |")
+    weak = weak_directions(share)
+    if weak:
+        lines += ["", f"Weakly excited (inertia under {100 * WEAK:g} % of damping): direction"
+                      f"{'s' if len(weak) > 1 else ''} {', '.join(map(str, weak))}."]
+    return lines + [""]
+
+
+def ratio_text(ratio) -> str:
+    """A ratio in percent; "–" where it is undefined (no motion), "no damping" where infinite
+    (a saved share holds both as None)."""
+    if ratio is None or ratio != ratio:
+        return "–"
+    return "no damping" if ratio == float("inf") else f"{100 * ratio:.3g} %"

@@ -33,8 +33,9 @@ def register(subparsers) -> None:
                         "direct; direct is added for Hamiltonian models)")
     p.add_argument("--data", metavar="DATA.npz", default=None,
                    help="compare the force terms G, D q̇, A u and the accelerations M⁻¹ times "
-                        "each along these data (default: the run's own data set, its training "
-                        "trajectories)")
+                        "each along these data, and say how much of the inertia they show per "
+                        "direction of the true M (as `softpinn excitation`; default: the run's "
+                        "own data set, its training trajectories)")
     p.add_argument("--samples", type=int, default=2000,
                    help="data samples for the force and acceleration comparisons (default "
                         "2000; 0: none)")

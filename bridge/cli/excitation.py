@@ -6,11 +6,8 @@ from __future__ import annotations
 
 import json
 
+from ..analysis.excitation import WEAK, mostly, ratio_text, weak_directions
 from ..errors import UserError
-
-#: Below this ratio of inertial to damping forces a direction counts as weakly excited (task 5
-#: at the paper's inputs, 8-9 %: M⁻¹ 6-22 % off; at 25 %: 1.2-1.7 %, RESULTS.md).
-WEAK = 0.15
 
 
 def register(subparsers) -> None:
@@ -70,14 +67,12 @@ def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str
              f"{'':3} {'mostly':<12} {'M eigenvalue':>12} {'corner':>9} {'inertia':>9} "
              f"{'damping':>9} {'rest':>9} {'inertia/damping':>16}"]
     for i, vec in enumerate(share["vectors"]):
-        order = sorted(range(len(vec)), key=lambda j: -vec[j])
-        mostly = ", ".join(names[j] for j in order[:2] if vec[j] >= 0.3) or names[order[0]]
         ratio = share["inertia_over_damping"][i]
         lines.append(
-            f"{i + 1:>3} {mostly:<12} {share['eigenvalue'][i]:>12.3g} "
+            f"{i + 1:>3} {mostly(vec, names):<12} {share['eigenvalue'][i]:>12.3g} "
             f"{share['corner_hz'][i]:>6.3g} Hz {share['inertial'][i]:>9.3g} "
-            f"{share['damping'][i]:>9.3g} {share['rest'][i]:>9.3g} {_percent(ratio):>16}")
-    weak = [i + 1 for i, r in enumerate(share["inertia_over_damping"]) if r < WEAK]
+            f"{share['damping'][i]:>9.3g} {share['rest'][i]:>9.3g} {ratio_text(ratio):>16}")
+    weak = weak_directions(share)
     if weak:
         corner = max(share["corner_hz"][i - 1] for i in weak)
         lines.append(
@@ -88,9 +83,7 @@ def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str
             f"show the mass\")")
     else:
         lines.append(f"every direction shows its inertia (at least {100 * WEAK:g} % of its "
-                     f"damping)")
+                     f"damping, or no damping along it)")
     return lines
 
 
-def _percent(x: float) -> str:
-    return "-" if x != x else f"{100 * x:.3g} %"

@@ -148,10 +148,13 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         lines += _rate_figure(plan, results, fig_dir, out)
     lines += ["## Learned matrices against the true ones", ""]
     for vname, vres in results["variants"].items():
+        first = True  # the data's excitation once per data set, with its first model
         for kind, entry in vres["models"].items():
             if "analyze" not in entry:
                 continue
-            lines += _analysis_section(plan, vname, kind, entry["analyze"], out)
+            lines += _analysis_section(plan, vname, kind, entry["analyze"], out,
+                                       excitation=first)
+            first = False
     lines += [
         "## Settings",
         "",
@@ -284,7 +287,8 @@ def _rel(path: Path, out: Path) -> str:
     return os.path.relpath(path, out)
 
 
-def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[str]:
+def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path, *,
+                      excitation: bool = True) -> list[str]:
     from ..analysis.transform_result import match_word
 
     s = an["summary"]
@@ -312,6 +316,8 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
                             an.get("seeds"))
     lines += _force_lines(report.parent, out)
+    if excitation:
+        lines += _excitation_lines(report.parent / "analysis.json")
     at = "at the paper's q" if paper_task(plan.task) else "per configuration"
     lines += ["", f"Tables {at}, per transform: [{_rel(report, out)}]"
                   f"({_rel(report, out)}).", ""]
@@ -328,6 +334,21 @@ def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path) -> list[
     if pentries.is_file():
         lines += [f"The transforms P(q) themselves: [P_entries.png]({_rel(pentries, out)}).", ""]
     return lines
+
+
+def _excitation_lines(path: Path) -> list[str]:
+    """How much of the inertia the training data show per direction of the true M
+    (:mod:`bridge.analysis.excitation`), from the analysis' samples."""
+    if not path.is_file():
+        return []
+    analysis = json.loads(path.read_text())
+    share = analysis.get("excitation")
+    if not share:
+        return []
+    from ..analysis.excitation import markdown_lines
+
+    table = markdown_lines(share, analysis.get("meta", {}).get("coordinates"), heading=None)
+    return ["", "**What the training data show of the inertia.** " + table[0], *table[1:-1]]
 
 
 def _force_lines(folder: Path, out: Path) -> list[str]:
