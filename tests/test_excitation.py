@@ -82,7 +82,8 @@ def test_cli_table_json_and_refusals(tmp_path, capsys):
             ([str(path), "task4"], "model has n=3 coordinates, the file has n=2"),
             ([str(path), "task1", "--samples", "0"], "--samples: expected a positive count"),
             ([str(path), "task1", "--trajectories", "7"], "[7] are not in the data set"),
-            ([str(path), "nomodel"], "unknown model 'nomodel'")):
+            ([str(path), "nomodel"], "unknown model 'nomodel'"),
+            (["task1", str(path)], "is a data set and task1 a model; give the data set first")):
         assert main(["excitation", *argv]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], (argv, err)

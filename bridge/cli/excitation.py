@@ -42,6 +42,9 @@ def cmd_excitation(args) -> int:
     from ..analysis.excitation import inertial_share
     from ..analysis.forces import data_samples
 
+    if str(args.model).endswith(".npz") and not str(args.data).endswith(".npz"):
+        raise UserError(f"excitation DATA.npz MODEL: {args.model} is a data set and {args.data} "
+                        f"a model; give the data set first")
     spec = load_spec(args.model)
     data = load_dataset(args.data, n=spec.n, m=spec.m)
     if args.samples < 1:
