@@ -10,15 +10,17 @@ quasi-statically, D q̇ ≈ A u - G, with M q̈ a few percent of D q̇.
 
 :func:`inertial_share` measures this on a data set with the true model: for each eigenvector v
 of M(q) (lightest first), the rms over the samples of the inertial force vᵀ M q̈ against the
-damping force vᵀ D q̇ and the rest vᵀ (A u - G - C q̇). A ratio of inertia to damping of a few
-percent says the data cannot pin the mass in that direction to better than a few ×10 percent of
-the other forces' errors; exciting the arm near the corner frequency raises it (RESULTS.md,
-challenge 3).
+damping force vᵀ D q̇ and the rest vᵀ (A u - G - C q̇). At a ratio r of inertia to damping, an
+error ε (relative) in the fitted damping or other forces there can be absorbed by an error of
+about ε / r in the mass: at r = 8 %, 1 % becomes 12 %. Inputs reaching toward the corner
+frequency raise r (RESULTS.md, challenge 3).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ..errors import UserError
 
 __all__ = ["WEAK", "inertial_share", "markdown_lines", "mostly", "weak_directions"]
 
@@ -34,7 +36,7 @@ def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
     """
     q, qd, u = (np.atleast_2d(np.asarray(a, float)) for a in (q, qd, u))
     if not (len(q) == len(qd) == len(u)) or len(q) == 0:
-        raise ValueError(f"q, qd, u: expected the same number N > 0 of rows, got "
+        raise UserError(f"q, qd, u: expected the same number N > 0 of rows, got "
                          f"{len(q)}, {len(qd)}, {len(u)}")
     M = np.asarray(true_model.M(q))
     D = np.asarray(true_model.D(q))

@@ -8,6 +8,7 @@ import json
 
 from ..analysis.excitation import WEAK, mostly, ratio_text, weak_directions
 from ..errors import UserError
+from ..outputs import to_jsonable
 
 
 def register(subparsers) -> None:
@@ -54,9 +55,9 @@ def cmd_excitation(args) -> int:
     ids = sorted(set(int(i) for i in data.traj)) if args.trajectories is None \
         else sorted(set(args.trajectories))
     if args.json:
-        print(json.dumps({"model": spec.name, "data": str(args.data), "samples": len(q),
-                          "trajectories": ids, "coordinates": list(spec.coordinate_names),
-                          **share}))
+        print(json.dumps(to_jsonable({  # NaN and inf as null
+            "model": spec.name, "data": str(args.data), "samples": len(q), "trajectories": ids,
+            "coordinates": list(spec.coordinate_names), **share})))
         return 0
     for line in _table(spec, share, args.data, len(q), len(ids)):
         print(line)
@@ -88,5 +89,3 @@ def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str
         lines.append(f"every direction shows its inertia (at least {100 * WEAK:g} % of its "
                      f"damping, or no damping along it)")
     return lines
-
-
