@@ -444,8 +444,7 @@ def write_report(
     if result.excitation is not None:
         from .excitation import markdown_lines as excitation_lines
 
-        spec = result.meta.get("coordinates")
-        lines += excitation_lines(result.excitation, spec)
+        lines += excitation_lines(result.excitation, result.meta.get("coordinates"))
     if plots:
         lines += [
             "## Entries: true against learned (the direct comparison where it applies) and "
