@@ -91,7 +91,7 @@ def figure(results: dict[str, Any], path: Path) -> None:
                    label=f"target {TARGET_PERCENT:g} %")
         ax.set_yscale("log")
         ax.set_xticks(x, [LABELS[c] for c in COLUMNS], fontsize=8)
-        ax.set_ylabel("direct relative residual [%]")
+        ax.set_ylabel("direct relative residual [%]\n(bars at the bottom: < 1e-3 %)")
         ax.set_title(f"{task}, {_variant_label(variant, models)}:\nlearned vs true (no transform)")
     # one legend for every panel, below them (in a panel it covered the bars)
     handles, labels = {}, {}
