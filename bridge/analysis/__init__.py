@@ -2,7 +2,7 @@
 (:mod:`.matrices`), the transforms P(q) with M ≈ P M̂ (:mod:`.transforms`, Tables I, II,
 V-IX), force terms and accelerations along the data (:mod:`.forces`), linearised time scales
 (:mod:`.modes`), one-step floors (:mod:`.floors`), and :func:`analyze`, which runs them all for
-one trained run (:mod:`.compare`)."""
+one trained run (:mod:`.compare`), and the files it writes (:mod:`.writer`)."""
 
 from .compare import (
     AnalysisResult,
@@ -10,10 +10,9 @@ from .compare import (
     analyze,
     learned_matrices,
     sample_q,
-    summary_numbers,
     true_matrices,
-    write_report,
 )
+from .writer import summary_numbers, write_report
 
 __all__ = [
     "AnalysisResult",

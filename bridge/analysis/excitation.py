@@ -22,7 +22,8 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["WEAK", "inertial_share", "markdown_lines", "mostly", "weak_directions"]
+__all__ = ["WEAK", "inertial_share", "markdown_lines", "mostly", "sample_share",
+           "weak_directions"]
 
 
 def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
@@ -60,6 +61,19 @@ def inertial_share(true_model, q, qd, u) -> dict[str, list[float]]:
             "inertial": rms(inertial).tolist(), "damping": rms(damping).tolist(),
             "rest": rms(rest).tolist(), "inertia_over_damping": ratio.tolist(),
             "vectors": np.median(np.abs(V), axis=0).T.tolist()}
+
+
+def sample_share(true_model, samples) -> dict[str, list[float]] | None:
+    """:func:`inertial_share` at :func:`bridge.analysis.analyze`'s ``samples`` ((q, q̇, u) or
+    (q, q̇, u, meta); u None: no inputs); None where the true model is matrices already
+    evaluated rather than a model with M, D and q̈."""
+    if not all(callable(getattr(true_model, a, None)) for a in ("M", "D", "qdd")):
+        return None
+    q, qd, u = samples[:3]
+    q = np.asarray(q, dtype=np.float64)
+    if u is None:
+        u = np.zeros((len(q), int(getattr(true_model, "m", 0) or 0)))
+    return inertial_share(true_model, q, qd, u)
 
 
 #: Below this ratio of inertial to damping forces a direction counts as weakly excited (task 5
