@@ -36,12 +36,18 @@ def setting_warnings(config, data: Dataset, n_train: int, batch: int) -> list[st
             f"{better} makes {n_train // better}"
         )
     model = config.model
-    # a Hamiltonian network on (q, q̇) has no scale to keep: any c M⁻¹ fits (learn/velocity.py);
-    # a network started from an earlier run (init) does not start at mass_init
+    # The data fix the mass's scale only where p is trained on (a Hamiltonian network on
+    # (q, p)) or where A is known. A Lagrangian network with a learned A has no scale to keep
+    # (c M, c D, c G, c A move the same way), nor has a Hamiltonian network on (q, q̇) (any
+    # c M⁻¹ fits, learn/velocity.py): there M's start is a gauge, and moving M alone off the
+    # other networks' scale makes the first q̈ that many times off (on task 4's data, M started
+    # at the data's 0.0057 made the first pair loss 1e39 and the run never recovered).
+    # A network started from an earlier run (init) does not start at mass_init.
+    pinned = (model.state_kind == "momentum" if model.kind == "hamiltonian"
+              else model.input_form == "known")
     if (config.init is None
             and model.kind in ("lagrangian", "lagrangian-hessian", "hamiltonian")
-            and data.p is not None
-            and model.state_kind == ("momentum" if model.kind == "hamiltonian" else "velocity")):
+            and data.p is not None and pinned):
         what = "M⁻¹" if model.kind == "hamiltonian" else "M"
         scale = mass_scale(data, model.kind)
         start = 1.0 if model.mass_init is None else model.mass_init

@@ -113,7 +113,9 @@ def add_network_flags(parser, title: str = "network") -> None:
     net.add_argument(
         "--mass-init", default=None, metavar="X|data",
         help="initial diagonal of M (Lagrangian) or M^-1 (Hamiltonian); 'data': from the "
-        "data's rms(p)/rms(qd) per coordinate (use it when masses are far from 1)",
+        "data's rms(p)/rms(qd) per coordinate (use it when masses are far from 1 and the data fix "
+        "their scale: momenta trained on, or --known-input; with A learned, M's scale is free "
+        "and moving it alone makes the first accelerations that many times off)",
     )
     net.add_argument("--state", choices=("velocity", "momentum"), default=None,
                      help="state of a black-box model (default velocity)")
