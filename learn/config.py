@@ -25,6 +25,8 @@ LOSSES = ("pair", "accel", "rollout")
 ENSEMBLE_MODES = ("auto", "vmap", "sequential")
 SEED_MAX = 2**32 - 1
 INPUT_HOLDS = ("constant", "linear")
+#: what held-out pairs are scored with: the training loss, or the pair loss (eq. 8/9)
+TEST_WITH = ("loss", "pair")
 #: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
 GROUPS = ("budget", "optimizer", "loss", "split", "ensemble", "devices")
 #: Settings that may change when a run is resumed (the others would make it another run).
@@ -71,7 +73,10 @@ class TrainConfig:
     first state of windows of consecutive samples of one trajectory; minibatches of windows).
     ``equilibrium_weight`` / ``force_weight`` > 0 add the static-equilibrium labels of the data
     file (:func:`learn.losses.label_loss`; Section VI-B's "additional labels") to the training
-    loss (not to the test loss, which stays eq. 8/9/10 alone).
+    loss (not to the test loss, which stays eq. 8/9/10 alone). ``test_with`` "pair" scores the
+    held-out pairs with eq. 8/9 whatever the training loss (one RK4 step per pair, with
+    ``substeps`` and ``input_hold``): with loss "accel" the cheap eq. 10 trains while the
+    one-step prediction error picks the best model and decides ``target_loss``/``patience``.
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
@@ -137,6 +142,12 @@ class TrainConfig:
                       "matrix (eq. 8 on q, qd; learn/velocity.py); auto: data when the file's "
                       "p came with it, velocity when it has none or computed ones (an import)",
                       MOMENTA)
+    test_with: str = _f(
+        "loss", "loss", "what held-out pairs are scored with: loss (the training loss) or pair "
+        "(eq. 8/9, one RK4 step per pair with --substeps and --input-hold, the one-step error "
+        "of `softpinn predict`); the best model, --target-loss, --patience and history's "
+        "test_loss then follow it (e.g. with loss accel: eq. 10 trains, the prediction error "
+        "picks)", TEST_WITH)
     equilibrium_weight: float = _f(
         0.0, "loss", "weight of the static-equilibrium labels G(q*) = A(q*) u* of the data file "
         "(eq_q, eq_u): + weight * mean |G - A u|^2 / mean (|G|^2 + |A u|^2) / 2 at the "
@@ -232,6 +243,7 @@ class TrainConfig:
             ("accel_labels", ACCEL_LABELS),
             ("accel_space", ACCEL_SPACES),
             ("momenta", MOMENTA),
+            ("test_with", TEST_WITH),
         ):
             if getattr(self, name) not in allowed:
                 raise UserError(
@@ -267,6 +279,9 @@ class TrainConfig:
             )
         self._check_momenta()
         self._check_accel_space()
+        if self.test_with == "pair" and self.loss == "rollout":
+            raise UserError("test_with: 'pair' scores held-out pairs; loss 'rollout' holds out "
+                            "windows, scored by the rollout loss (leave test_with 'loss')")
         for name in ("equilibrium_weight", "force_weight"):
             if getattr(self, name) > 0 and self.model.kind == "blackbox":
                 raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "

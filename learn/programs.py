@@ -94,8 +94,13 @@ def labels_key(labels: Equilibria | None):
     return h.hexdigest()
 
 
-def errors_function(config: TrainConfig) -> Callable:
-    """``errors(model, pairs) -> (B,)``: the per-pair terms whose mean is the loss."""
+def errors_function(config: TrainConfig, *, test: bool = False) -> Callable:
+    """``errors(model, pairs) -> (B,)``: the per-pair terms whose mean is the loss; with
+    ``test``, the terms held-out pairs are scored with (``config.test_with``: the training
+    loss, or eq. 8/9 whatever the training loss)."""
+    if test and config.test_with == "pair" and config.loss != "pair":
+        config = dataclasses.replace(config, loss="pair", accel_space="acceleration",
+                                     accel_weights=None, accel_labels="recorded")
     return _configured(config, accel_errors, rollout_errors, pair_errors)
 
 
@@ -303,12 +308,15 @@ class Programs:
                     select_members(active, new_s, opt_state), loss)
 
         self._epoch_fn = epoch_fn
-        errors_of = errors_function(config)
+        def weighted_sum_of(errors_of):
+            def weighted_sum(params, chunk, w):
+                return jnp.sum(w * errors_of(eqx.combine(params, static), chunk))
 
-        def weighted_sum(params, chunk, w):
-            return jnp.sum(w * errors_of(eqx.combine(params, static), chunk))
+            return jax.jit(_over_members(weighted_sum, (0, None, None)))
 
-        self._eval_chunk = jax.jit(_over_members(weighted_sum, (0, None, None)))
+        self._eval_chunk = weighted_sum_of(errors_function(config))
+        self._eval_test_chunk = (weighted_sum_of(errors_function(config, test=True))
+                                 if config.test_with == "pair" else self._eval_chunk)
         self.eval_size = max(batch, 256)
         self._set_eval_data(train, test)
         self.init_opt = jax.jit(_over_members(self.opt.init, (0,)))
@@ -366,17 +374,17 @@ class Programs:
         self._test_chunks = _chunked(test, self.eval_size)
         self._n_eval = (jax.tree.leaves(train)[0].shape[0], jax.tree.leaves(test)[0].shape[0])
 
-    def _evaluate(self, params, chunks, count):
-        total = sum(self._eval_chunk(params, c, w) for c, w in zip(*chunks, strict=True))
+    def _evaluate(self, fn, params, chunks, count):
+        total = sum(fn(params, c, w) for c, w in zip(*chunks, strict=True))
         return total / count
 
     def eval_fn(self, params):
-        """Mean loss of every member on the test pairs, (K,)."""
-        return self._evaluate(params, self._test_chunks, self._n_eval[1])
+        """Mean test loss of every member on the test pairs (``config.test_with``), (K,)."""
+        return self._evaluate(self._eval_test_chunk, params, self._test_chunks, self._n_eval[1])
 
     def eval_train_fn(self, params):
-        """Mean loss of every member on all training pairs, (K,)."""
-        return self._evaluate(params, self._train_chunks, self._n_eval[0])
+        """Mean training loss of every member on all training pairs, (K,)."""
+        return self._evaluate(self._eval_chunk, params, self._train_chunks, self._n_eval[0])
 
     def lbfgs_fn(self, params, state, active):
         return self._lbfgs_fn(params, state, active, self.train)

@@ -60,6 +60,10 @@ def _plot_title(run_dir: Path) -> str:
     except (OSError, ValueError, KeyError, TypeError):
         return f"{Path(run_dir).name}: loss (train solid, test dashed)"
     seed = f", seed {info['seed']}" if "seed" in info else ""
+    train = info.get("train", {})
+    if train.get("test_with") == "pair" and train.get("loss") != "pair":
+        return (f"{kind} network on {name}{seed}: training loss ({train.get('loss')}, solid), "
+                "test: one-step error (eq. 8/9, dashed)")
     return f"{kind} network on {name}{seed}: loss (train solid, test dashed)"
 
 

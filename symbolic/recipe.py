@@ -35,6 +35,7 @@ LOSS_KEYS: dict[str, tuple[str, tuple | None]] = {
     "loss_weight": ("float", None),
     "accel_labels": ("str", ("recorded", "differences")),
     "accel_space": ("str", ("acceleration", "force")),
+    "test_with": ("str", ("loss", "pair")),
 }
 
 #: [training.<physics network>]: what the network is built with and how it takes the data, in

@@ -161,6 +161,7 @@ momenta = "velocity"
 loss = "accel"
 accel_labels = "differences"
 accel_space = "force"
+test_with = "pair"
 """, base="task4")
     spec = load_spec(path)
     for quick in (False, True):
@@ -199,6 +200,7 @@ accel_space = "force"
         assert tc.model.damping_form == ("constant" if kind == "hamiltonian" else "network")
         assert (tc.model.mass_init is None) == (kind == "hamiltonian")
         assert tc.accel_space == ("force" if kind == "hamiltonian" else "acceleration")
+        assert tc.test_with == ("pair" if kind == "hamiltonian" else "loss")
 
 
 def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):

@@ -351,6 +351,34 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
         blackbox_train_config(loss="accel", model=tiny_model_config("hamiltonian"))
 
 
+def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
+    # test_with "pair": eq. 10 trains, the held-out pairs are scored by eq. 8 (one RK4 step):
+    # the same training, another test column, and the best model is the one that predicts best
+    from softpinn.learn.data import make_pairs, split_trajectories
+    from softpinn.learn.losses import pair_loss
+    from softpinn.learn.programs import to_pairs
+
+    kw = dict(loss="accel", lr=3e-2, input_hold="linear", checkpoint_every=4)
+    plain = train(msd, blackbox_train_config(**kw), tmp_path / "a").members[0]
+    res = train(msd, blackbox_train_config(test_with="pair", **kw), tmp_path / "b")
+    scored = res.members[0]
+    assert [r["train_loss"] for r in scored.history] == [r["train_loss"]
+                                                         for r in plain.history]
+    _, test_ids = split_trajectories(msd, test=(4,))
+    pairs = to_pairs(make_pairs(msd, test_ids), "float64")
+    best = float(pair_loss(scored.model, pairs, input_hold="linear"))
+    assert scored.metrics["best_test_loss"] == pytest.approx(best, rel=1e-9)
+    assert min(r["test_loss"] for r in scored.history) == pytest.approx(best, rel=1e-9)
+    # the eq. 10 run's own test column is another number (q̈ errors, not state errors)
+    assert plain.metrics["best_test_loss"] != pytest.approx(best, rel=1e-2)
+    assert ckpt.read_json(tmp_path / "b" / "config.json")["train"]["test_with"] == "pair"
+    with pytest.raises(UserError, match=r"^test_with: 'pair' scores held-out pairs; loss "
+                                        r"'rollout' holds out windows"):
+        blackbox_train_config(loss="rollout", test_with="pair")
+    with pytest.raises(UserError, match=r"^test_with: expected one of \['loss', 'pair'\]"):
+        blackbox_train_config(test_with="rollout")
+
+
 def test_lbfgs_alone_from_an_earlier_run(msd, tmp_path):
     # epochs 0 with L-BFGS iterations: no AdamW step, L-BFGS from the --init model
     first = train(msd, blackbox_train_config(), tmp_path / "a")

@@ -249,7 +249,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
             m["max_step"] = float(recipe.networks[kind]["max_step"])
         # the loss a network learns from (eq. 8/9 unless the recipe says otherwise)
         m.update({k: recipe.networks.get(kind, {})[k] for k in ("loss", "loss_weight",
-                                                                "accel_labels", "accel_space")
+                                                                "accel_labels", "accel_space",
+                                                                "test_with")
                   if k in recipe.networks.get(kind, {})})
         # how the network is built and takes the data (a known A, the damping's form, momenta)
         m.update({k: v for k, v in recipe.networks.get(kind, {}).items() if k in MODEL_KEYS})
