@@ -345,7 +345,15 @@ class Programs:
             return select_members(active, new_p, params), select_members(active, new_s, state), v
 
         self._lbfgs_fn = lbfgs_fn
-        self.lbfgs_init = jax.jit(_over_members(lbfgs.init, (0,)))
+
+        def lbfgs_init(params):
+            # optax.lbfgs's initial state holds weakly typed scalars (its line search's info)
+            # where lbfgs_fn returns strong ones: without this, the second chunk's call did not
+            # match the first's and compiled lbfgs_fn again (16-28 s on task 4, every run)
+            state = _over_members(lbfgs.init, (0,))(params)
+            return jax.tree.map(lambda a: jax.lax.convert_element_type(a, a.dtype), state)
+
+        self.lbfgs_init = jax.jit(lbfgs_init)
 
     def with_data(self, config, train, test) -> Programs:
         """The same compiled functions for other arrays of the same shapes."""

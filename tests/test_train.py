@@ -379,6 +379,17 @@ def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
         blackbox_train_config(test_with="rollout")
 
 
+def test_lbfgs_compiles_once(msd, tmp_path):
+    # its chunks are one compiled program: the initial state's weak types used to make the
+    # second chunk compile it again (16-28 s of every task 4 L-BFGS finish)
+    from softpinn.learn.programs import ProgramCache
+
+    cache = ProgramCache()
+    train(msd, blackbox_train_config(epochs=1, lbfgs_steps=30), tmp_path / "r", programs=cache)
+    (prog,) = cache.entries.values()
+    assert prog._lbfgs_fn._cache_size() == 1
+
+
 def test_lbfgs_alone_from_an_earlier_run(msd, tmp_path):
     # epochs 0 with L-BFGS iterations: no AdamW step, L-BFGS from the --init model
     first = train(msd, blackbox_train_config(), tmp_path / "a")
