@@ -76,3 +76,57 @@ def test_a_users_folder_is_not_written_into(fake_studies, tmp_path, capsys):
 def test_task_flags_are_refused(kw, flag):
     with pytest.raises(UserError, match=f"{flag}: the challenges' studies set their own"):
         ReproduceConfig(task="challenges", quick=True, **kw)
+
+
+@pytest.mark.parametrize("eq10_reaches", [True, False])
+def test_fast_recipe_goes_on_with_the_pair_loss_only_where_eq10_falls_short(
+        tmp_path, monkeypatch, eq10_reaches):
+    """Challenge 1's fast recipe: eq. 10 scored by the pair loss, stopped at the level; the
+    pair loss from eq. 10's best model only where eq. 10 did not get there, its time counted
+    after eq. 10's whole run."""
+    from softpinn.bridge.challenges import fast
+    from softpinn.bridge.tasks import stages
+
+    level = fast.paper_level()
+    calls = []
+
+    def h(*rows):
+        return [{"epoch": e, "test_loss": t, "seconds": s, "phase": p} for e, t, s, p in rows]
+
+    def fake_train(spec, plan, files, folder, progress, *, loss, budget, target=None,
+                   init=None):
+        calls.append({"loss": loss, "target": target, "init": init, "folder": folder.name})
+        if loss == "pair" and init is None:  # today: reaches the level in L-BFGS at 300 s
+            hist = h((0, 1.0, 0.0, "adamw"), (10, 0.5 * level, 300.0, "lbfgs"))
+        elif loss == "accel":
+            end = 0.9 * level if eq10_reaches else 3.0 * level
+            hist = h((0, 1.0, 0.0, "adamw"), (300, 10 * level, 20.0, "adamw"),
+                     (310, end, 50.0, "lbfgs"))
+        else:  # the pair loss from eq. 10's model
+            hist = h((0, 3.0 * level, 0.0, "adamw"), (5, 0.8 * level, 40.0, "lbfgs"))
+        return {"run": str(folder / "run"), "wall_s": hist[-1]["seconds"] + 1,
+                "train_s": hist[-1]["seconds"],
+                "best_test_loss": min(r["test_loss"] for r in hist), "stopped": "x",
+                "history": hist, "config": {}, "load_after": "0"}
+
+    monkeypatch.setattr(fast, "_train", fake_train)
+    monkeypatch.setattr(stages, "stage_data", lambda spec, plan, folder: {"variants": {
+        "main": {"physics": {"path": "x.npz", "train": [0], "test": [1]}}}})
+    ttl = fast._time_to_loss(tmp_path, False, lambda s: None, None)
+    assert ttl["level"] == level and ttl["level_is_paper"] and ttl["today_s"] == 300.0
+    warm = next(c for c in calls if c["loss"] == "accel")
+    assert warm["target"] == level and warm["init"] is None
+    pair_after = [c for c in calls if c["init"] is not None]
+    if eq10_reaches:
+        assert ttl["reached_in"] == "warm" and ttl["fast_s"] == 50.0 and not pair_after
+        assert "fast" not in ttl["runs"] and ttl["curves"]["fast"] == []
+    else:
+        (after,) = pair_after
+        assert after["loss"] == "pair" and after["target"] == level
+        assert after["init"] == str(tmp_path / "train-warm" / "run")
+        assert ttl["reached_in"] == "fast" and ttl["fast_s"] == 50.0 + 40.0
+        assert [c[0] for c in ttl["curves"]["fast"]] == [50.0, 90.0]
+    assert ttl["speedup"] == pytest.approx(300.0 / ttl["fast_s"])
+    fast._figure({"batch": 8, "n": {"6": {"kinds": {"lagrangian": {"step_ms": 1.0}}}}}, ttl,
+                 tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 0

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import re
+from pathlib import Path
 
 import pytest
 
@@ -66,11 +67,24 @@ def test_fast_training_study_measures_what_it_reports(quick_run):
     ttl = res["time_to_loss"]
     assert ttl["level"] == ttl["runs"]["today"]["best_test_loss"] > 0
     assert 0 < ttl["today_s"] <= ttl["runs"]["today"]["train_s"]
-    assert ttl["warm_s"] > 0 and ttl["runs"]["fast"]["train_s"] > 0
-    if ttl["fast_s"] is not None:
+    assert ttl["warm_s"] > 0
+    # the fast recipe: eq. 10 scored by the pair loss; the pair loss after it only where eq. 10
+    # did not reach the level
+    warm = json.loads((Path(ttl["runs"]["warm"]["run"]) / "config.json").read_text())["train"]
+    assert (warm["loss"], warm["test_with"]) == ("accel", "pair")
+    assert warm["target_loss"] == ttl["level"]
+    reached = ttl["reached_in"]
+    assert ("fast" in ttl["runs"]) == bool(ttl["curves"]["fast"]) == (reached != "warm")
+    if reached == "warm":
+        assert ttl["fast_s"] <= ttl["warm_s"]
+        assert ttl["runs"]["warm"]["best_test_loss"] <= ttl["level"]
+    elif reached == "fast":
         assert ttl["fast_s"] >= ttl["warm_s"]
+        fast = json.loads((Path(ttl["runs"]["fast"]["run"]) / "config.json").read_text())
+        assert fast["train"]["init"] == ttl["runs"]["warm"]["run"]  # from eq. 10's model
+    if ttl["fast_s"] is not None:
         assert math.isclose(ttl["speedup"], ttl["today_s"] / ttl["fast_s"])
-    # the pair run starts from the warm start's model, not from a fresh initialisation
+    # eq. 10's model is scored on the same pairs as the fresh one, and is another model
     assert ttl["warm_start_test_loss"] != ttl["fresh_start_test_loss"]
     first = res["targets"][0]
     assert first["what"].startswith("Hessian / structured step time, n = 6")
