@@ -281,7 +281,7 @@ class TrainConfig:
         self._check_accel_space()
         if self.test_with == "pair" and self.loss == "rollout":
             raise UserError("test_with: 'pair' scores held-out pairs; loss 'rollout' holds out "
-                            "windows, scored by the rollout loss (leave test_with 'loss')")
+                            "windows, which the rollout loss itself scores")
         for name in ("equilibrium_weight", "force_weight"):
             if getattr(self, name) > 0 and self.model.kind == "blackbox":
                 raise UserError(f"{name}: the equilibrium labels weigh G and A of a physics "
