@@ -41,7 +41,7 @@ def setting_warnings(config, data: Dataset, n_train: int, batch: int) -> list[st
     # (c M, c D, c G, c A move the same way), nor has a Hamiltonian network on (q, q̇) (any
     # c M⁻¹ fits, learn/velocity.py): there M's start is a gauge, and moving M alone off the
     # other networks' scale makes the first q̈ that many times off (on task 4's data, M started
-    # at the data's 0.0057 made the first pair loss 1e39 and the run never recovered).
+    # at the data's 0.0057 made the first pair loss 2e39 and the run never recovered).
     # A network started from an earlier run (init) does not start at mass_init.
     pinned = (model.state_kind == "momentum" if model.kind == "hamiltonian"
               else model.input_form == "known")

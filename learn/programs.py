@@ -308,6 +308,7 @@ class Programs:
                     select_members(active, new_s, opt_state), loss)
 
         self._epoch_fn = epoch_fn
+
         def weighted_sum_of(errors_of):
             def weighted_sum(params, chunk, w):
                 return jnp.sum(w * errors_of(eqx.combine(params, static), chunk))
