@@ -280,3 +280,30 @@ def test_epochs_column_says_when_training_stopped_early():
     assert _epochs(trained(40, [13, 22])) == "13-22 of 40 (early stop)"
     assert _epochs(trained(400, [400], 2000)) == "400 + 2000 L-BFGS"
     assert _epochs(trained(400, [120], 2000)) == "120 of 400 (early stop) + 2000 L-BFGS"
+
+
+def test_rollouts_that_ran_away_are_counted_beside_inf():
+    """A mean of inf says a rollout ran away; the report says how many, and the others' error."""
+    import math
+
+    from softpinn.bridge.report.task_figures import _ran_away_text
+    from softpinn.bridge.tasks.stages import error_stats
+
+    s = error_stats([np.array([0.1, 0.3, math.inf, 0.2])])
+    assert s["mean"] == math.inf and s["std"] == math.inf
+    assert s["ran_away"]["count"] == 1 and s["ran_away"]["of"] == 4
+    assert s["ran_away"]["others"]["mean"] == pytest.approx(0.2)
+    assert s["ran_away"]["others"]["std"] == pytest.approx(np.std([0.1, 0.3, 0.2]))
+    assert _ran_away_text(s["ran_away"]) == "; 1 of 4 ran away, the other 3: 0.200 ± 0.082"
+    # over seeds: every rollout of every seed counts
+    two = error_stats([np.array([0.1, math.inf]), np.array([0.3, 0.5])])
+    assert two["ran_away"] == {"count": 1, "of": 4, "others": pytest.approx(
+        {"mean": 0.3, "std": float(np.std([0.1, 0.3, 0.5]))})}
+    assert _ran_away_text(error_stats([np.array([math.inf, 1.0])])["ran_away"]) == \
+        "; 1 of 2 ran away, the other: 1.000 ± 0.000"
+    gone = error_stats([np.array([math.inf, math.inf])])
+    assert gone["ran_away"] == {"count": 2, "of": 2}
+    assert _ran_away_text(gone["ran_away"]) == "; 2 of 2 ran away"
+    fine = error_stats([np.array([0.1, 0.3])])
+    assert "ran_away" not in fine and _ran_away_text(fine.get("ran_away")) == ""
+    assert fine["mean"] == pytest.approx(0.2)

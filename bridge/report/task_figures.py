@@ -115,9 +115,25 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
                           ("other_dt_prediction_error", "dt")):
             v = pr[key]
             where = f"dt {v['dt']:g} s" if what else f"{v['horizon_s']:g} s"
-            cells.append(f"{format_mean_std(v['mean'], v['std'])} ({where})")
+            cells.append(f"{format_mean_std(v['mean'], v['std'])} ({where}"
+                         f"{_ran_away_text(v.get('ran_away'))})")
         err_lines.append(f"| {_NETWORK[k]} | " + " | ".join(cells) + " |")
     return lines + err_lines + [""]
+
+
+def _ran_away_text(ran_away: dict | None) -> str:
+    """``; 1 of 4 ran away, the other 3: 0.242 ± 0.100`` for an error whose mean is inf
+    because rollouts ran away (stage_predict's ``ran_away``); empty when none did."""
+    if not ran_away:
+        return ""
+    n, of = ran_away["count"], ran_away["of"]
+    text = f"; {n} of {of} ran away"
+    if "others" in ran_away:
+        o = ran_away["others"]
+        rest = of - n
+        text += (f", the other {rest}" if rest > 1 else ", the other") + \
+            f": {format_mean_std(o['mean'], o['std'])}"
+    return text
 
 
 def _paper_rate_errors(task: str) -> dict[float, float]:

@@ -328,16 +328,7 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     np.savez(folder / "rollouts.npz", **arrays)
 
     def stat(key, pick=lambda x: x):
-        # a rollout that blew up has error inf: the mean and std are then inf (not NaN)
-        vals = [np.asarray(pick(p[key]), float) for p in per_seed]
-        with np.errstate(invalid="ignore", over="ignore"):
-            means = [float(np.mean(v)) for v in vals]
-            stds = [float(np.std(v)) if np.all(np.isfinite(v)) else math.inf for v in vals]
-            out = {"mean": float(np.mean(means)), "std": float(np.mean(stds))}
-            if len(per_seed) > 1:
-                spread = float(np.std(means)) if np.all(np.isfinite(means)) else math.inf
-                out["seeds"] = {"mean": float(np.mean(means)), "std": spread}
-        return out
+        return error_stats([np.asarray(pick(p[key]), float) for p in per_seed])
 
     test_err = stat("long", lambda res: np.asarray([res.one_step_error["mean"]]))
     test_err["std"] = float(np.mean([p["long"].one_step_error["std"] for p in per_seed]))
@@ -355,6 +346,29 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
         "trajectories": list(map(int, test)),
         "seeds": [p["seed"] for p in per_seed],
     }
+
+
+def error_stats(vals: list[np.ndarray]) -> dict[str, Any]:
+    """Mean and std of errors, one array per seed (rollouts or pairs), averaged over seeds.
+
+    A rollout that blew up has error inf: the mean and std are then inf (not NaN), as in the
+    paper's Table III. How many ran away, and the other rollouts' mean and std, are kept beside
+    them (``ran_away``), so that a report can say more than ``inf ± inf``."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        means = [float(np.mean(v)) for v in vals]
+        stds = [float(np.std(v)) if np.all(np.isfinite(v)) else math.inf for v in vals]
+        out: dict[str, Any] = {"mean": float(np.mean(means)), "std": float(np.mean(stds))}
+        if len(vals) > 1:
+            spread = float(np.std(means)) if np.all(np.isfinite(means)) else math.inf
+            out["seeds"] = {"mean": float(np.mean(means)), "std": spread}
+    every = np.concatenate([np.ravel(v) for v in vals])
+    ran_away = ~np.isfinite(every)
+    if ran_away.any():
+        out["ran_away"] = {"count": int(ran_away.sum()), "of": int(every.size)}
+        if not ran_away.all():
+            rest = every[~ran_away]
+            out["ran_away"]["others"] = {"mean": float(rest.mean()), "std": float(rest.std())}
+    return out
 
 
 def integration(m: Mapping[str, Any]) -> dict[str, Any]:
