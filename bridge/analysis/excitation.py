@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import UserError
 
-__all__ = ["WEAK", "inertial_share", "markdown_lines", "mostly", "sample_share",
+__all__ = ["WEAK", "data_share", "inertial_share", "markdown_lines", "mostly", "sample_share",
            "weak_directions"]
 
 
@@ -74,6 +74,17 @@ def sample_share(true_model, samples) -> dict[str, list[float]] | None:
     if u is None:
         u = np.zeros((len(q), int(getattr(true_model, "m", 0) or 0)))
     return inertial_share(true_model, q, qd, u)
+
+
+def data_share(true_model, data, trajectories=None, *, count: int = 2000,
+               seed: int = 0) -> tuple[dict[str, list[float]], int]:
+    """:func:`inertial_share` at up to ``count`` samples drawn (seeded) from the given
+    trajectories of a data set (None: all; :func:`bridge.analysis.forces.data_samples`), and
+    the number of samples drawn."""
+    from .forces import data_samples
+
+    q, qd, u, _ = data_samples(data, trajectories, count=count, seed=seed)
+    return inertial_share(true_model, q, qd, u), len(q)
 
 
 #: Below this ratio of inertial to damping forces a direction counts as weakly excited (task 5

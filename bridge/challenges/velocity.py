@@ -191,11 +191,9 @@ def _excitation(spec, data, train_ids, count: int) -> dict[str, Any]:
     """The inertial forces the training data show along each eigenvector of the true M
     (:func:`bridge.analysis.excitation.inertial_share`)."""
     from ...symbolic.model import TrueModel
-    from ..analysis.excitation import inertial_share
-    from ..analysis.forces import data_samples
+    from ..analysis.excitation import data_share
 
-    q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
-    return inertial_share(TrueModel(spec), q, qd, u)
+    return data_share(TrueModel(spec), data, train_ids, count=count)[0]
 
 
 def _variant(task, spec, plan, variant, files, stages, *, quick, progress, tag_name=None,

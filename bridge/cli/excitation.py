@@ -40,26 +40,24 @@ def cmd_excitation(args) -> int:
     from softpinn.symbolic.model import TrueModel
     from softpinn.symbolic.spec import load_spec
 
-    from ..analysis.excitation import inertial_share
-    from ..analysis.forces import data_samples
+    from ..analysis.excitation import data_share
 
     if str(args.model).endswith(".npz") and not str(args.data).endswith(".npz"):
         raise UserError(f"excitation DATA.npz MODEL: {args.model} is a data set and {args.data} "
                         f"a model; give the data set first")
-    spec = load_spec(args.model)
-    data = load_dataset(args.data, n=spec.n, m=spec.m)
     if args.samples < 1:
         raise UserError(f"--samples: expected a positive count, got {args.samples}")
-    q, qd, u, _ = data_samples(data, args.trajectories, count=args.samples, seed=0)
-    share = inertial_share(TrueModel(spec), q, qd, u)
+    spec = load_spec(args.model)
+    data = load_dataset(args.data, n=spec.n, m=spec.m)
+    share, samples = data_share(TrueModel(spec), data, args.trajectories, count=args.samples)
     ids = sorted(set(int(i) for i in data.traj)) if args.trajectories is None \
         else sorted(set(args.trajectories))
     if args.json:
         print(json.dumps(to_jsonable({  # NaN and inf as null
-            "model": spec.name, "data": str(args.data), "samples": len(q), "trajectories": ids,
+            "model": spec.name, "data": str(args.data), "samples": samples, "trajectories": ids,
             "coordinates": list(spec.coordinate_names), **share})))
         return 0
-    for line in _table(spec, share, args.data, len(q), len(ids)):
+    for line in _table(spec, share, args.data, samples, len(ids)):
         print(line)
     return 0
 
