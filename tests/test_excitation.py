@@ -87,3 +87,12 @@ def test_cli_table_json_and_refusals(tmp_path, capsys):
         assert main(["excitation", *argv]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], (argv, err)
+
+
+def test_velocity_report_prints_an_undefined_ratio_as_a_dash():
+    # a saved share holds NaN/inf as null: the study's table prints them, never fails on them
+    from softpinn.bridge.challenges.velocity_report import _excitation_lines
+
+    share = {"inertia_over_damping": [0.0779, None, 0.5], "eigenvalue": [5.5e-4, 6e-4, 0.1]}
+    lines = _excitation_lines({"task5": {"variants": {"100Hz": {"excitation": share}}}})
+    assert "| task5 | 100Hz | 0.00055, 0.0006 | 7.79 %, – |" in lines

@@ -258,13 +258,15 @@ def _excitation_lines(results: dict[str, Any]) -> list[str]:
     """The inertial forces each data set shows along the true M's two lightest directions
     (:func:`bridge.analysis.excitation.inertial_share`), the table that says where M⁻¹ can be
     learned from."""
+    from ..analysis.excitation import ratio_text
+
     rows = []
     for task, r in results.items():
         for variant, models in r["variants"].items():
             ex = models.get("excitation") if isinstance(models, dict) else None
             if not ex:
                 continue
-            ratio = ", ".join(f"{100 * x:.3g} %" for x in ex["inertia_over_damping"][:2])
+            ratio = ", ".join(ratio_text(x) for x in ex["inertia_over_damping"][:2])
             lam = ", ".join(f"{x:.2g}" for x in ex["eigenvalue"][:2])
             rows.append(f"| {task} | {_variant_label(variant, models)} | {lam} | {ratio} |")
     if not rows:
