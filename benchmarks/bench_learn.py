@@ -6,8 +6,9 @@ gradient and an optax AdamW update) on a batch of 1024 random pairs, with the de
 sizes of ``ModelConfig`` (M, V: 64 x 3; D, A: 16 x 2; black box 128 x 3) and m = n inputs.
 Reports samples per second (median and best of timed steps; the kinds of one (n, dtype) are
 timed round-robin so that background load hits them alike), the process CPU time of a step,
-the XLA compile time of the step, and the time of a 5,000-step rollout of one trajectory
-(one jitted ``lax.scan``; its compile time separately).
+the XLA compile time of the step, its floating-point operations as XLA counts them (the
+ratio of two kinds' counts is their time ratio at equal speed), and the time of a 5,000-step
+rollout of one trajectory (one jitted ``lax.scan``; its compile time separately).
 
 Prints one JSON object on stdout (per-row progress on stderr). Ratios (structured vs Hessian
 vs black box) are computed within the run. ``--quick``: n = 6, float32, fewer repetitions. The
@@ -103,6 +104,11 @@ def main(argv=None):
                     entry[f"structured_over_blackbox_{key}"] = s / by["blackbox"][key]
                 if "hamiltonian" in by:
                     entry[f"hamiltonian_over_structured_{key}"] = by["hamiltonian"][key] / s
+            base = by["lagrangian"].get("gflop")
+            for other, key in (("lagrangian-hessian", "hessian_over_structured_flops"),
+                               ("hamiltonian", "hamiltonian_over_structured_flops")):
+                if base and by.get(other, {}).get("gflop") is not None:
+                    entry[key] = by[other]["gflop"] / base
             ratios.append(entry)
 
     print(

@@ -44,6 +44,22 @@ def random_pairs(key, n, m, batch, dtype) -> Pairs:
     )
 
 
+def step_gflop(compiled) -> float | None:
+    """The floating-point operations of one compiled step, in 10⁹, as XLA's cost analysis counts
+    them (every dot and elementwise operation of the optimised program; None where the backend
+    gives no count). The work a step does, whatever the machine: the ratio of two kinds' counts
+    is what their times' ratio tends to when both run at the same speed."""
+    inner = getattr(compiled, "compiled", compiled)  # equinox wraps jax.stages.Compiled
+    try:
+        cost = inner.cost_analysis()
+    except Exception:  # noqa: BLE001 - some backends have none
+        return None
+    if isinstance(cost, list):
+        cost = cost[0] if cost else {}
+    flops = (cost or {}).get("flops")
+    return None if flops is None or flops < 0 else float(flops) / 1e9
+
+
 def build_train(kind, n, dtype, *, batch, seed=0):
     """A compiled training step for one model kind; returns (call, state, compile seconds)."""
     ensure_dtype(dtype)
@@ -63,7 +79,7 @@ def build_train(kind, n, dtype, *, batch, seed=0):
     t0 = time.perf_counter()
     compiled = train_step.lower(model, opt_state, pairs).compile()
     compile_s = time.perf_counter() - t0
-    state = {"model": model, "opt_state": opt_state, "loss": None}
+    state = {"model": model, "opt_state": opt_state, "loss": None, "gflop": step_gflop(compiled)}
 
     def call():
         state["model"], state["opt_state"], state["loss"] = block(
@@ -77,7 +93,8 @@ def build_train(kind, n, dtype, *, batch, seed=0):
 def time_train_steps(kinds, n, dtype, *, batch, reps) -> dict[str, dict]:
     """Compile every kind's step, then time ``reps`` rounds of them round-robin; per kind: the
     median and best wall time of a step (ms), the best process CPU time, samples per second,
-    the compile time and whether the last loss was finite."""
+    the compile time, the step's floating-point operations (:func:`step_gflop`) and whether the
+    last loss was finite."""
     built = {k: build_train(k, n, dtype, batch=batch) for k in kinds}
     wall = {k: [] for k in kinds}
     cpu = {k: [] for k in kinds}
@@ -97,6 +114,7 @@ def time_train_steps(kinds, n, dtype, *, batch, reps) -> dict[str, dict]:
             "samples_per_s": batch / step_s,
             "samples_per_s_best": batch / min(wall[k]),
             "compile_s": built[k][2],
+            "gflop": built[k][1]["gflop"],
             "finite": bool(jnp.isfinite(built[k][1]["loss"])),
         }
     return out

@@ -64,6 +64,10 @@ def test_fast_training_study_measures_what_it_reports(quick_run):
     st, he = (row["kinds"][k]["step_ms"] for k in ("lagrangian", "lagrangian-hessian"))
     assert st > 0 and he > 0 and all(v["finite"] for v in row["kinds"].values())
     assert math.isclose(row["over_structured"]["lagrangian-hessian"], he / st)
+    # the work of each step, as XLA counts it: the Hessian form does more of it
+    flops = [row["kinds"][k]["gflop"] for k in ("lagrangian", "lagrangian-hessian")]
+    assert math.isclose(row["flops_over_structured"]["lagrangian-hessian"], flops[1] / flops[0])
+    assert flops[1] > flops[0] > 0
     ttl = res["time_to_loss"]
     assert ttl["level"] == ttl["runs"]["today"]["best_test_loss"] > 0
     assert 0 < ttl["today_s"] <= ttl["runs"]["today"]["train_s"]
