@@ -114,8 +114,7 @@ def _steps(form: str, log) -> dict[str, Any]:
 def _flop_ratios(rows: dict[str, dict]) -> dict[str, float | None]:
     """Each kind's floating-point operations per step over the structured step's (XLA's count,
     :func:`softpinn.learn.steptime.step_gflop`): the time ratio a kind would show if both ran
-    at the same speed, so the bound on what a faster implementation of the same arithmetic can
-    reach (None where the backend gives no count)."""
+    at the same speed per operation (None where the backend gives no count)."""
     base = rows["lagrangian"].get("gflop")
     return {k: (None if not base or r.get("gflop") is None else r["gflop"] / base)
             for k, r in rows.items() if k != "lagrangian"}
