@@ -80,7 +80,8 @@ class TrainConfig:
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
-    ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (20%);
+    ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (the file's
+    recorded test split, else 20%: :func:`learn.data.split_trajectories`);
     ``split_seed`` draws the split, the ``samples`` subset of training pairs and the
     ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each;
     a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly
@@ -163,7 +164,8 @@ class TrainConfig:
                        "after another (auto: vmap on an accelerator)", ENSEMBLE_MODES)
     # split
     test_trajectories: tuple[int, ...] | int | float | None = _f(
-        None, "split", "held-out trajectories: ids, a count, a fraction (default 20%)")
+        None, "split", "held-out trajectories: ids, a count, a fraction (default: the file's "
+        "recorded test split, else 20%)")
     split_seed: int = _f(0, "split", "seed of the random train/test split of trajectories")
     samples: int | None = _f(None, "split", "train on N randomly chosen pairs (default: all)")
     test_samples: int | None = _f(None, "split", "evaluate the test loss on N randomly chosen "

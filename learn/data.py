@@ -329,6 +329,25 @@ def _equilibria(name: str, eq: dict, n: int, m: int) -> dict:
     return {k: np.ascontiguousarray(v, dtype=np.float64) for k, v in eq.items()}
 
 
+def recorded_test_split(data: Dataset) -> list[int] | None:
+    """The test trajectories the file records (``meta["splits"]["test"]``: the spec's
+    ``test_trajectories`` of a simulated file, ``import --test-trajectories K``), or None where
+    it records none, or a split that holds out no trajectory or every one, or ids not in the
+    file."""
+    splits = data.meta.get("splits") if isinstance(data.meta, dict) else None
+    test = splits.get("test") if isinstance(splits, dict) else None
+    if not isinstance(test, (list, tuple)) or not test:
+        return None
+    try:
+        chosen = sorted({int(i) for i in test})
+    except (TypeError, ValueError):
+        return None
+    ids = set(data.trajectory_ids.tolist())
+    if not set(chosen) <= ids or len(chosen) >= len(ids):
+        return None
+    return chosen
+
+
 def split_trajectories(
     data: Dataset,
     *,
@@ -338,12 +357,16 @@ def split_trajectories(
     """Split trajectory ids into (train, test) BY TRAJECTORY, never by sample.
 
     ``test``: explicit list of trajectory ids; an int count of test trajectories; a float fraction
-    in (0, 1); or None for 20% (at least one). Counts and fractions draw the test trajectories at
-    random with ``seed``. With a single trajectory there is nothing to hold out: train and test
-    are both that trajectory (reported as such by the caller).
+    in (0, 1); or None: the test split the file records (``meta["splits"]["test"]``, written by
+    ``simulate`` and ``import``) where it has one that leaves a trajectory for training, else 20%
+    (at least one). Counts and fractions draw the test trajectories at random with ``seed``.
+    With a single trajectory there is nothing to hold out: train and test are both that
+    trajectory (reported as such by the caller).
     """
     ids = data.trajectory_ids
     k = len(ids)
+    if test is None:
+        test = recorded_test_split(data)
     if isinstance(test, (list, tuple, np.ndarray)):
         chosen = np.array(sorted({int(i) for i in test}), dtype=np.int64)
         unknown = np.setdiff1d(chosen, ids)

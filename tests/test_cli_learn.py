@@ -46,6 +46,24 @@ def test_train_writes_run_dir(run, capsys):
     assert len(cfg["dataset"]["sha256"]) == 64
 
 
+def test_train_holds_out_the_split_the_file_records(data, tmp_path, capsys):
+    """Without a split on the command line, the test trajectories are the ones the file records
+    (simulate's spec, import --test-trajectories), and the summary says which and why."""
+    arrays = dict(np.load(data))
+    meta = json.loads(str(arrays.pop("meta")))
+    meta["splits"] = {"train": [0, 1, 2], "test": [3, 4]}
+    recorded = write(tmp_path / "split.npz", arrays, meta)
+    flags = [f for f in TRAIN if f not in ("--test-trajectories", "4")]
+    capsys.readouterr()
+    assert main(["train", str(recorded), "--out", str(tmp_path / "r"), *flags]) == 0
+    assert "held out: trajectories 3, 4 (the test split the file records)" in (
+        capsys.readouterr().out)
+    assert json.loads((tmp_path / "r" / "config.json").read_text())["split"]["test"] == [3, 4]
+    # a split given on the command line wins, and is said to be given
+    assert main(["train", str(recorded), "--out", str(tmp_path / "g"), *TRAIN]) == 0
+    assert "held out: trajectory 4 (given)" in capsys.readouterr().out
+
+
 def test_train_json_resume_and_force(data, run, capsys, tmp_path):
     out = tmp_path / "r"
     assert main(["train", str(data), "--out", str(out), *TRAIN, "--json"]) == 0

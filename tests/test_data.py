@@ -227,3 +227,20 @@ def test_difference_momenta_converge_at_second_order(tmp_path):
     assert errors[-1] < 1e-3 * np.max(np.abs(data.qdd))
     with pytest.raises(UserError, match=r"accel labels must be one of \['recorded', 'diff"):
         make_pairs(data, [0], accel="smoothed")
+
+
+def test_the_split_the_file_records_is_the_default(tmp_path, arrays):
+    """A file's meta['splits']['test'] (simulate's spec, import --test-trajectories) holds those
+    trajectories out when no split is given; a recorded split that is empty, holds every
+    trajectory or names ids not in the file falls back to 20% at random."""
+    meta = {"spec": {"name": "t"}, "splits": {"train": [0], "test": [1, 2]}}
+    ds = load_dataset(write(tmp_path / "s.npz", arrays, meta))
+    tr, te = split_trajectories(ds)
+    assert tr.tolist() == [0] and te.tolist() == [1, 2]
+    # given splits still win
+    assert split_trajectories(ds, test=[0])[1].tolist() == [0]
+    assert len(split_trajectories(ds, test=1, seed=0)[1]) == 1
+    for bad in ([], [0, 1, 2], [1, 9], "2", None):
+        meta = {"spec": {"name": "t"}, "splits": {"test": bad}}
+        ds = load_dataset(write(tmp_path / "b.npz", arrays, meta))
+        assert len(split_trajectories(ds, seed=0)[1]) == 1  # 20% of 3, at random

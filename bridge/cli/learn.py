@@ -42,7 +42,9 @@ def _devices(text: str) -> int:
 
 def _split_flags(group) -> None:
     group.add_argument("--test-trajectories", type=int, nargs="+", default=None, metavar="ID",
-                       help="trajectory ids held out for testing (default: 20%% drawn at random)")
+                       help="trajectory ids held out for testing (default: the test split the data "
+                       "file records, from simulate's spec or import --test-trajectories; "
+                       "else 20%% drawn at random)")
     group.add_argument("--test-count", type=int, default=None, metavar="K",
                        help="hold out K trajectories drawn at random")
 
@@ -366,11 +368,34 @@ def cmd_train(args) -> int:
             f"trained {len(m['seeds'])} seed(s) of a {config.model.kind} model on "
             f"{m['pairs']['train']} pairs ({m['ensemble_mode']})"
         )
-        print(
-            f"best test loss: {bt['mean']:.4e} ± {bt['std']:.3e}   (best seed {m['best_member']})"
-        )
+        spread = f" ± {bt['std']:.3e}" if len(m["seeds"]) > 1 else ""
+        print(f"best test loss: {bt['mean']:.4e}{spread}   (best seed {m['best_member']})")
+        print(_held_out_text(result.run_dir, config, data))
         print(f"run directory: {result.run_dir}")
     return 0
+
+
+def _held_out_text(run_dir, config, data) -> str:
+    """Which trajectories the test loss was measured on, and where that split came from."""
+    from pathlib import Path
+
+    from softpinn.learn.checkpoint import read_json
+    from softpinn.learn.data import recorded_test_split
+
+    split = read_json(Path(run_dir) / "config.json")["split"]
+    test = split["test"]
+    if test == split["train"]:
+        return ("held out: nothing (the file has one trajectory: the test loss is measured on "
+                "the training trajectory)")
+    given = config.test_trajectories
+    if isinstance(given, tuple):
+        source = "given"
+    elif given is None and recorded_test_split(data) == test:
+        source = "the test split the file records"
+    else:
+        source = f"drawn at random, --split-seed {config.split_seed}"
+    ids = ", ".join(map(str, test))
+    return f"held out: trajector{'y' if len(test) == 1 else 'ies'} {ids} ({source})"
 
 
 def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:

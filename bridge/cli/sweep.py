@@ -16,8 +16,8 @@ def _split_flags(group) -> None:
     group.add_argument("--train-samples", type=int, default=None, metavar="N",
                        help="train on N randomly chosen pairs (train's --samples; default: all)")
     group.add_argument("--test-trajectories", type=int, nargs="+", default=None, metavar="ID",
-                       help="trajectory ids held out for testing (default: 20%% drawn at "
-                       "random, the same for every trial)")
+                       help="trajectory ids held out for testing (default: the test split the "
+                       "data file records, else 20%% drawn at random; the same for every trial)")
     group.add_argument("--test-count", type=int, default=None, metavar="K",
                        help="hold out K trajectories drawn at random")
 
