@@ -62,6 +62,11 @@ def test_train_holds_out_the_split_the_file_records(data, tmp_path, capsys):
     # a split given on the command line wins, and is said to be given
     assert main(["train", str(recorded), "--out", str(tmp_path / "g"), *TRAIN]) == 0
     assert "held out: trajectory 4 (given)" in capsys.readouterr().out
+    # one trajectory: nothing to hold out, and the summary says so
+    one = {k: v[arrays["traj"] == 0] for k, v in arrays.items()}
+    single = write(tmp_path / "one.npz", one, {"spec": {"name": "one"}})
+    assert main(["train", str(single), "--out", str(tmp_path / "o"), *flags]) == 0
+    assert "held out: nothing (the file has one trajectory" in capsys.readouterr().out
 
 
 def test_train_json_resume_and_force(data, run, capsys, tmp_path):
