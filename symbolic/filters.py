@@ -68,11 +68,14 @@ class Smoother:
     @property
     def min_samples(self) -> int:
         """The fewest samples a trajectory needs for this smoother."""
+        fewest = 5 if self.differences == 4 else 2
         if self.method == "savgol":
             return self.window
         if self.method == "polyfit":
             return self.degree + 1
-        return 5 if self.differences == 4 else 2
+        if self.method == "movmean":  # a longer window flattens the whole trajectory
+            return max(self.window, fewest)
+        return fewest
 
     def describe(self) -> dict:
         d = {"method": self.method, "text": str(self)}

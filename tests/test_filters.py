@@ -193,6 +193,16 @@ def test_bad_difference_orders(order):
         F.parse_smoother("none", order)
 
 
+def test_a_moving_mean_longer_than_the_trajectory_is_refused():
+    """movmean:W over fewer than W samples flattens the trajectory (every sample the mean of
+    nearly all): refused, as savgol is, instead of giving a constant q."""
+    t = np.arange(40.0)
+    with pytest.raises(F.FilterError, match="movmean:100 needs at least 100 samples per "
+                       "trajectory, got 40"):
+        F.smooth(t, np.sin(t), F.parse_smoother("movmean:100"))
+    F.smooth(t, np.sin(t), F.parse_smoother("movmean:40"))
+
+
 def test_fourth_order_differences_need_five_samples():
     with pytest.raises(F.FilterError, match=r"none, differences 4 needs at least 5 samples"):
         F.smooth(np.arange(4.0), np.arange(4.0), F.parse_smoother("none", 4))
