@@ -402,6 +402,40 @@ def test_input_bounds_hold(specs):
     assert res["u"].max() == pytest.approx(0.7)  # the bound is active at the start
 
 
+def test_default_input_bounds_cover_the_inputs_simulate_draws(tmp_path):
+    """The default bounds contain every input of the spec's data set, with a quarter of the
+    range to spare: a multisine sums its components beyond one amplitude, a one-number
+    amplitude stands for every input and a missing offset is 0 (they used to give no bounds)."""
+    from softpinn.bridge.control import default_input_bounds
+    from softpinn.symbolic.datasets import make_dataset as simulate_data
+    from softpinn.symbolic.spec import load_spec
+
+    path = tmp_path / "arm.toml"
+    path.write_text(FULL + """
+[data]
+signal = "multisine"
+components = 3
+amplitude_low = 0.1
+amplitude_high = 0.5
+frequency_low = 0.2
+frequency_high = 2.0
+trajectories = 3
+duration = 4.0
+rate = 50.0
+""")
+    spec = load_spec(str(path))
+    lo, hi = default_input_bounds(spec)
+    u = simulate_data(spec, compile=False).u
+    width = u.max(axis=0) - u.min(axis=0)
+    assert np.all(width > 0.5)  # the components sum beyond one amplitude
+    assert np.all(lo <= u.min(axis=0) - 0.2 * width) and np.all(hi >= u.max(axis=0) + 0.2 * width)
+    # no input that moves: no bounds
+    still = tmp_path / "still.toml"
+    still.write_text(FULL.replace("msd-full", "still") + '[data]\nsignal = "zero"\n'
+                     'q0_low = [-0.1, -0.1]\nq0_high = [0.1, 0.1]\n')
+    assert default_input_bounds(load_spec(str(still))) is None
+
+
 def test_a_stiff_model_gets_more_substeps(specs):
     import casadi as ca
 

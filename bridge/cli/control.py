@@ -85,8 +85,8 @@ def register(subparsers) -> None:
     m.add_argument("--weight-du", dest="weight_du", type=float, default=d.weight_du,
                    metavar="W", help="weight of the squared input change per step")
     m.add_argument("--u-min", dest="u_min", type=float, nargs="+", default=None, metavar="U",
-                   help="lower input bounds (m values or one; default: the spec's [data] input "
-                        "range widened by a quarter, none without one; -inf lifts it)")
+                   help="lower input bounds (m values or one; default: the range of the inputs "
+                        "`simulate` draws for the spec, widened by a quarter; -inf lifts it)")
     m.add_argument("--u-max", dest="u_max", type=float, nargs="+", default=None, metavar="U",
                    help="upper input bounds (as --u-min)")
     m.add_argument("--solver", choices=SOLVERS, default=d.solver,

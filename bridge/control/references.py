@@ -55,24 +55,49 @@ def default_radius(spec) -> float:
 
 
 def default_input_bounds(spec) -> tuple[np.ndarray, np.ndarray] | None:
-    """(u_min, u_max): the range of the spec's ``[data]`` input signals (offset ± amplitude),
-    widened by a quarter of its width on each side: inputs near those the models were trained
-    on. None when the data table has no offset and amplitude ranges (e.g. no input signal)."""
-    from softpinn.symbolic.datatable import data_config
+    """(u_min, u_max): the range of the inputs ``softpinn simulate SPEC`` draws (every
+    trajectory's signal from the spec's ``[data]`` table, or the physics defaults without one,
+    sampled at the data's rate, together with offset ± amplitude where the table gives those
+    ranges), widened by a quarter of its width on each side: inputs near those the models were
+    trained on. The signals themselves are measured, so a multisine's summed components count.
+    An input the data hold constant is left unbounded (-inf, inf); None when no input moves
+    (or m = 0)."""
+    from softpinn.symbolic.datasets import draw_trajectories, plan_dataset
 
-    try:
-        ranges = data_config(spec).ranges
-    except Exception:  # noqa: BLE001 - no usable [data] table: no bounds
+    if not spec.m:
         return None
-    keys = ("offset_low", "offset_high", "amplitude_high")
-    if not all(k in ranges for k in keys):
-        return None
-    lo = np.asarray(ranges["offset_low"], float) - np.asarray(ranges["amplitude_high"], float)
-    hi = np.asarray(ranges["offset_high"], float) + np.asarray(ranges["amplitude_high"], float)
-    if lo.size != spec.m or hi.size != spec.m:
+    plan = plan_dataset(spec)
+    sim = plan.sim
+    _, signals = draw_trajectories(plan.data, spec.n, spec.m, range(plan.trajectories),
+                                   kind=plan.signal, duration=sim.duration + plan.settle,
+                                   seed=plan.seed)
+    t = np.arange(int(np.floor((sim.duration + plan.settle) * sim.rate)) + 1) / sim.rate
+    u = np.concatenate([np.asarray(sig(t), float).reshape(len(t), spec.m) for sig in signals])
+    lo, hi = u.min(axis=0), u.max(axis=0)
+    envelope = _signal_envelope(plan.data.ranges, spec.m)
+    if envelope is not None:  # offset ± amplitude: what one sinusoid of the ranges can reach
+        lo, hi = np.minimum(lo, envelope[0]), np.maximum(hi, envelope[1])
+    moves = np.isfinite(lo) & np.isfinite(hi) & (hi > lo)
+    if not moves.any():
         return None
     pad = 0.25 * (hi - lo)
-    return np.round(lo - pad, 12), np.round(hi + pad, 12)
+    # an input the data hold constant gets no bound: its one value would leave no control
+    return (np.where(moves, np.round(lo - pad, 12), -np.inf),
+            np.where(moves, np.round(hi + pad, 12), np.inf))
+
+
+def _signal_envelope(ranges, m: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """offset_low - amplitude_high .. offset_high + amplitude_high per input (a missing offset
+    is 0, one number stands for every input), or None without an amplitude range."""
+    if "amplitude_high" not in ranges:
+        return None
+    try:
+        amp = np.broadcast_to(np.asarray(ranges["amplitude_high"], float), (m,))
+        off_lo = np.broadcast_to(np.asarray(ranges.get("offset_low", 0.0), float), (m,))
+        off_hi = np.broadcast_to(np.asarray(ranges.get("offset_high", 0.0), float), (m,))
+    except ValueError:  # sizes the [data] table's checks let through for another use
+        return None
+    return off_lo - np.abs(amp), off_hi + np.abs(amp)
 
 
 def _circle_q(q_center, radius, period, t):
