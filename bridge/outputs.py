@@ -7,7 +7,9 @@ the command that owns the folder); when it finishes, the manifest lists every fi
 its sha256. The folder may be new, empty, or one the same command claimed before (a rerun, or a
 rerun after an interruption: the claim is written first, so an interrupted command never blocks
 the next one). Any other non-empty folder (a user's, a run directory, another command's output)
-is refused with one line unless ``--force``; ``--force`` writes into it and removes nothing.
+is refused with one line unless ``--force``; ``--force`` writes into it and removes nothing. A
+rerun is refused too where a file the finished command recorded has changed since (its user
+edited it): the sha256 in the manifest tells.
 """
 
 from __future__ import annotations
@@ -61,8 +63,37 @@ def _describe(who: str) -> str:
     return f"the output of softpinn {who}"
 
 
-def claim(out: str | Path, command: str, *, force: bool = False) -> Path:
-    """Make ``out`` the output folder of ``command`` (see the module's docstring)."""
+def _sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def changed_files(out: str | Path) -> list[str]:
+    """Files a finished command recorded in ``out``'s manifest that have changed since (edited
+    by their user). Empty where the manifest is not a finished command's: after an interrupted
+    run, a file it rewrote and had no time to record is not anybody's edit."""
+    out = Path(out)
+    manifest = _read(out) or {}
+    if manifest.get("complete") is not True:
+        return []
+    changed = []
+    for name, sha in manifest.get("files", {}).items():
+        path = out / name
+        try:
+            if path.is_file() and _sha256(path) != sha:
+                changed.append(name)
+        except OSError:
+            continue
+    return changed
+
+
+def check(out: str | Path, command: str, *, force: bool = False) -> str | None:
+    """Refuse, with one line, an ``out`` that ``command`` may not write into (see the module's
+    docstring; also a file of an earlier output of ``command`` that its user has edited since);
+    return the folder's owner (:func:`owner`). Writes nothing."""
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UserError(f"out: {out} is a file, not a folder")
@@ -77,10 +108,27 @@ def claim(out: str | Path, command: str, *, force: bool = False) -> Path:
             f"out: {out} already holds {_describe(who)}; choose another folder, or --force to "
             "write into it (nothing of yours is removed)"
         )
+    if who == command and not force:
+        changed = changed_files(out)
+        if changed:
+            more = f" (and {len(changed) - 1} more)" if len(changed) > 1 else ""
+            raise UserError(
+                f"out: {out / changed[0]}{more} changed after softpinn {command} wrote it; "
+                "move it away, or --force to write over it"
+            )
+    return who
+
+
+def claim(out: str | Path, command: str, *, force: bool = False) -> Path:
+    """Make ``out`` the output folder of ``command`` (see the module's docstring)."""
+    out = Path(out)
+    who = check(out, command, force=force)
     try:
         out.mkdir(parents=True, exist_ok=True)
         previous = (_read(out) or {}).get("files", {}) if who == command else {}
-        _write(out, {"format": FORMAT, "command": command, "files": previous})
+        # not complete until record(): an interrupted run's rewritten files are its own
+        _write(out, {"format": FORMAT, "command": command, "files": previous,
+                     "complete": False})
     except OSError as exc:
         raise UserError(f"out: {out}: cannot write there ({exc.strerror or exc})") from None
     return out
@@ -100,8 +148,9 @@ def record(out: str | Path, paths: Iterable[str | Path]) -> None:
             name = p.resolve().relative_to(root).as_posix()
         except ValueError:
             continue
-        files[name] = hashlib.sha256(p.read_bytes()).hexdigest()
+        files[name] = _sha256(p)
     manifest["files"] = dict(sorted(files.items()))
+    manifest["complete"] = True
     _write(out, manifest)
 
 

@@ -400,6 +400,20 @@ def _generate_into(work, out, fns, compiler, flags, timeout, timings, extra, cac
     return summary
 
 
+def read_derive_summary(folder: str | os.PathLike) -> dict | None:
+    """``folder``'s ``summary.json`` where it is one that :func:`generate` wrote (a JSON object
+    with its ``source``, ``casadi`` and ``functions`` keys), else None: a file of that name that
+    someone else wrote makes the folder no earlier derive output."""
+    try:
+        obj = json.loads((Path(folder) / "summary.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if not (isinstance(obj, dict) and isinstance(obj.get("functions"), dict)
+            and isinstance(obj.get("source"), str) and "casadi" in obj):
+        return None
+    return obj
+
+
 def summary_files(summary: Mapping) -> set[str]:
     """The file names a derive ``summary.json`` says its folder holds."""
     names = {"summary.json", str(summary.get("source") or "")}
@@ -422,11 +436,8 @@ def _install_folder(work: Path, out: Path, summary: Mapping) -> None:
             except OSError:
                 if not out.is_dir():
                     raise
-        earlier: set[str] = set()
-        try:
-            earlier = summary_files(json.loads((out / "summary.json").read_text()))
-        except (OSError, ValueError, AttributeError):
-            pass
+        previous = read_derive_summary(out)
+        earlier = summary_files(previous) if previous is not None else set()
         names = sorted(p.name for p in work.iterdir() if p.name != "summary.json")
         for name in [*names, "summary.json"]:
             os.replace(work / name, out / name)

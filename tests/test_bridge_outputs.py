@@ -47,6 +47,31 @@ def test_claim_new_empty_own_and_foreign_folders(tmp_path):
         outputs.claim(tmp_path / "file" / "sub", "analyze")
 
 
+def test_a_rerun_keeps_the_files_their_user_edited(tmp_path):
+    """A file a finished command recorded and its user edited since is not written over by a
+    rerun without --force; after an interrupted run (claimed, never recorded) the files it
+    rewrote are its own, and the rerun goes on."""
+    out = outputs.claim(tmp_path / "a", "analyze")
+    (out / "summary.md").write_text("ours")
+    (out / "gone.md").write_text("ours too")
+    outputs.record(out, [out / "summary.md", out / "gone.md"])
+    (out / "gone.md").unlink()  # a recorded file deleted: nothing of anybody's to keep
+    assert outputs.claim(out, "analyze") == out
+    outputs.record(out, [out / "summary.md"])
+    (out / "summary.md").write_text("ours, with my notes")
+    with pytest.raises(UserError, match=r"summary.md changed after softpinn analyze wrote it; "
+                                        r"move it away, or --force"):
+        outputs.claim(out, "analyze")
+    with pytest.raises(UserError, match="summary.md changed"):
+        outputs.check(out, "analyze")
+    assert (out / "summary.md").read_text() == "ours, with my notes"
+    outputs.claim(out, "analyze", force=True)
+    # interrupted: claimed, a file rewritten, never recorded: the next run is not refused
+    (out / "summary.md").write_text("half of a new summary")
+    assert outputs.changed_files(out) == []
+    assert outputs.claim(out, "analyze") == out
+
+
 def test_reproduce_refuses_a_users_folder_before_any_work(tmp_path, capsys):
     mine = tmp_path / "paper"
     mine.mkdir()
@@ -91,6 +116,13 @@ def test_analyze_protects_the_users_files(task1_run, tmp_path, capsys):
     capsys.readouterr()
     files = json.loads((out / "manifest.json").read_text())["files"]
     assert "report.md" in files and "analysis.json" in files
+    # a file of it the user edited is kept: refused in one line until --force
+    (out / "report.md").write_text("my edit")
+    assert main([*args, "--out", str(out)]) == 2
+    assert "report.md changed after softpinn analyze wrote it" in _err(capsys)
+    assert (out / "report.md").read_text() == "my edit"
+    assert main([*args, "--out", str(out), "--force"]) == 0
+    capsys.readouterr()
     # --force writes beside the user's other files and removes none
     (mine / "notes.txt").write_text("keep me")
     assert main([*args, "--out", str(mine), "--force"]) == 0

@@ -84,6 +84,15 @@ def test_derive_writes_everything(capsys, tmp_path):
     (foreign / "notes.txt").write_text("keep")
     status, _, err = run(capsys, "derive", "task1", "--out", foreign)
     assert status == 2 and "not empty" in err and "--force" in err
+    # a summary.json that derive did not write makes no earlier derive output
+    (foreign / "summary.json").write_text('{"files": ["notes.txt"]}')
+    (foreign / "softpinn_eom.c").write_text("my code")
+    status, _, err = run(capsys, "derive", "task1", "--out", foreign)
+    assert status == 2 and "holds no earlier derive output" in err
+    assert (foreign / "softpinn_eom.c").read_text() == "my code"
+    # --force writes beside them; the foreign summary's "files" are not removed
+    assert run(capsys, "derive", "task1", "--out", foreign, "--force")[0] == 0
+    assert (foreign / "notes.txt").read_text() == "keep"
 
 
 def test_simulate_and_resampled_siblings(capsys, tmp_path):

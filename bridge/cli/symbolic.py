@@ -255,7 +255,7 @@ def cmd_matrices(args) -> int:
 
 
 def cmd_derive(args) -> int:
-    from softpinn.symbolic.codegen import find_compiler, generate
+    from softpinn.symbolic.codegen import find_compiler, generate, read_derive_summary
     from softpinn.symbolic.eom import derive
     from softpinn.symbolic.functions import functions_of
     from softpinn.symbolic.spec import load_spec
@@ -273,7 +273,7 @@ def cmd_derive(args) -> int:
     if (
         out.is_dir()
         and any(out.iterdir())
-        and not (out / "summary.json").is_file()
+        and read_derive_summary(out) is None
         and not args.force
     ):
         raise UserError(

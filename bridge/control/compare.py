@@ -329,9 +329,7 @@ def _precheck_out(out: Path, force: bool) -> None:
                 raise UserError(f"out: {out}: cannot write there (no write permission in "
                                 f"{parent})")
             break
-    who = outputs.owner(out)
-    if who is not None and who != "control" and not force:
-        outputs.claim(out, "control", force=False)  # raises its one-line error
+    outputs.check(out, "control", force=force)  # its one-line refusal, before any work
 
 
 def _load() -> list[float] | None:
