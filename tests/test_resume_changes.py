@@ -51,6 +51,9 @@ def test_cli_resume_epochs_50_after_5(data, tmp_path, capsys):
     assert main(["train", str(data), "--out", str(out), "--resume", "--quiet"]) == 0
     assert ckpt.read_json(out / "config.json")["train"]["epochs"] == 50
     capsys.readouterr()
+    # the run's own --model typed again (the help says it is required) changes nothing
+    assert main(["train", str(data), "--out", str(out), "--model", "blackbox", "--resume",
+                 "--quiet"]) == 0
     # the same command again with --resume is accepted
     assert main(["train", str(data), "--out", str(out), *TRAIN, "--epochs", "50",
                  "--resume"]) == 0

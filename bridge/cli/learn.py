@@ -437,6 +437,8 @@ def _resumed_with_flags(args, stored, data):
     import dataclasses
 
     given = set(args.given) - _RUN_FLAGS
+    if args.model == stored.model.kind:  # the run's own kind typed again: no change
+        given.discard("model")
     fields = {f.name for f in dataclasses.fields(stored)}
     changes = {name: getattr(args, name) for name in given & fields}
     if given & {"test_trajectories", "test_count"}:
