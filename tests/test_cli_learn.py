@@ -227,3 +227,23 @@ def test_train_flags_come_from_the_config_fields():
     assert set(GROUPS) <= set(groups)
     config = TrainConfig(model=ModelConfig(kind="lagrangian", n=2, m=1), lr=3e-3)
     assert config.group("optimizer")["lr"] == 3e-3 and "lr" not in config.group("loss")
+
+
+def test_predict_says_which_rollouts_ran_away():
+    """A rollout that turns non-finite is named with the time it did, beside the others' mean
+    and std (the mean over all is inf, as the paper's tables have it)."""
+    from types import SimpleNamespace
+
+    from softpinn.bridge.cli.learn import _ran_away_text
+
+    t = np.arange(5) * 0.5
+    q = np.ones((5, 2))
+    bad = q.copy()
+    bad[3:] = np.nan
+    res = SimpleNamespace(rollout_errors=[0.1, float("inf"), 0.3], trajectories=[4, 7, 9],
+                          rollouts=[{"t": t, "q_pred": q}, {"t": t, "q_pred": bad},
+                                    {"t": t, "q_pred": q}])
+    assert _ran_away_text(res) == ("; 1 of 3 ran away (trajectory 7, at t = 1.5 s), the other "
+                                   "2: 2.0000e-01 ± 1.000e-01")
+    res.rollout_errors = [0.1, 0.2, 0.3]
+    assert _ran_away_text(res) == ""

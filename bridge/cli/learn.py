@@ -375,6 +375,29 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _ran_away_text(res) -> str:
+    """'; 1 of 4 ran away (trajectory 11, at t = 15.3 s), the other 3: 0.016 ± 0.009', or ''."""
+    import numpy as np
+
+    errors = np.asarray(res.rollout_errors, float)
+    bad = ~np.isfinite(errors)
+    if not bad.any():
+        return ""
+    where = []
+    for i in np.flatnonzero(bad):
+        roll = res.rollouts[i]
+        q = np.asarray(roll["q_pred"], float)
+        rows = np.flatnonzero(~np.isfinite(q).reshape(len(q), -1).all(axis=1))
+        when = f", at t = {float(np.asarray(roll['t'])[rows[0]]):.3g} s" if rows.size else ""
+        where.append(f"trajectory {res.trajectories[i]}{when}")
+    text = f"; {int(bad.sum())} of {len(errors)} ran away ({'; '.join(where[:3])}"
+    text += f"; {len(where) - 3} more)" if len(where) > 3 else ")"
+    good = errors[~bad]
+    if good.size:
+        text += f", the other {good.size}: {good.mean():.4e} ± {good.std():.3e}"
+    return text
+
+
 def _held_out_text(run_dir, config, data) -> str:
     """Which trajectories the test loss was measured on, and where that split came from."""
     from pathlib import Path
@@ -507,9 +530,11 @@ def cmd_predict(args) -> int:
         extra += f", reset every {args.reset_every:g} s"
     if args.dt:
         extra += f", dt {args.dt:g} s"
+    count = len(out["trajectories"])
     print(
         f"rollout error ({args.horizon:g} s{extra}): {fmt(out['rollout_error_mean'])} ± "
-        f"{fmt(out['rollout_error_std'])} over {len(out['trajectories'])} trajectories"
+        f"{fmt(out['rollout_error_std'])} over {count} trajector{'y' if count == 1 else 'ies'}"
+        f"{_ran_away_text(res)}"
     )
     if out["plot"]:
         print(f"plot: {out['plot']}")
