@@ -101,6 +101,17 @@ def plot_loss_curves(
     return _save(fig, path, record)
 
 
+def coordinate_unit(name: str, kind: str | None) -> str:
+    """The unit of a coordinate from its name (``theta1`` -> rad, ``dL2`` -> m) and the spec's
+    kind (the double pendulum's angles, the mass-spring-damper's positions); '' if unknown."""
+    base = str(name).rstrip("0123456789")
+    if base in ("theta", "phi") or kind == "double-pendulum":
+        return "rad"
+    if base in ("dL", "dx", "dy") or kind == "mass-spring-damper":
+        return "m"
+    return ""
+
+
 def plot_rollout(
     t: np.ndarray,
     q_true: np.ndarray,
@@ -109,19 +120,38 @@ def plot_rollout(
     *,
     title: str = "rollout",
     resets: np.ndarray | None = None,
+    names: list[str] | None = None,
+    kind: str | None = None,
 ) -> Path:
-    """Predicted (dashed) against true (solid) coordinates over time, one panel per q_i, and the
-    absolute error underneath."""
+    """Predicted (dashed) against true (solid) coordinates over time, one panel per coordinate
+    (``names``, e.g. the data file's ``dx1``, ``dy1``, ``dL1``, with units from ``kind``), and
+    the absolute errors underneath. Time runs from the trajectory's first sample. A prediction
+    that leaves the truth's range far behind (or runs away) is cut at the panel's edge, which
+    says so, so that the true curve stays readable."""
     n = q_true.shape[1]
+    names = list(names) if names is not None and len(names) == n else [
+        f"q{i + 1}" for i in range(n)]
+    units = [coordinate_unit(c, kind) for c in names]
+    t0 = float(np.asarray(t, float)[0])
+    t = np.asarray(t, float) - t0
+    q_pred = _finite(q_pred)
     fig, axes = _figure(n + 1, 1, size=(7.0, 1.8 * (n + 1)))
     for i in range(n):
         ax = axes[i, 0]
         ax.plot(t, q_true[:, i], lw=1.4, label="true")
-        ax.plot(t, _finite(q_pred[:, i]), "--", lw=1.4, label="predicted")
-        ax.set_ylabel(f"q{i + 1}")
+        ax.plot(t, q_pred[:, i], "--", lw=1.4, label="predicted")
+        ax.set_ylabel(f"{names[i]} [{units[i]}]" if units[i] else names[i])
         ax.grid(True, alpha=0.3)
+        lo, hi = float(np.min(q_true[:, i])), float(np.max(q_true[:, i]))
+        span = max(hi - lo, 1e-12 + 1e-6 * max(abs(lo), abs(hi)))
+        with np.errstate(invalid="ignore"):
+            outside = (q_pred[:, i] < lo - 2 * span) | (q_pred[:, i] > hi + 2 * span)
+        if np.isnan(q_pred[:, i]).any() or outside.any():
+            ax.set_ylim(lo - 2 * span, hi + 2 * span)
+            ax.text(0.99, 0.04, "prediction leaves the panel", transform=ax.transAxes,
+                    ha="right", va="bottom", fontsize=7, color="C1")
         if resets is not None:
-            for tr in resets:
+            for tr in np.asarray(resets, float) - t0:
                 ax.axvline(tr, color="0.7", lw=0.6)
     axes[0, 0].legend(fontsize=8)
     axes[0, 0].set_title(title)
@@ -130,10 +160,11 @@ def plot_rollout(
     with np.errstate(invalid="ignore", over="ignore"):
         err = _finite(np.maximum(np.abs(q_pred - q_true)[1:], 1e-300))
     for i in range(n):
-        ax.plot(t[1:], err[:, i], lw=1.0, label=f"|e{i + 1}|")
-    ax.legend(fontsize=8)
+        ax.plot(t[1:], err[:, i], lw=1.0, label=f"|{names[i]} error|")
+    ax.legend(fontsize=7, ncol=min(n, 3))
     ax.set_yscale("log")
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel("abs. error")
+    ax.set_xlabel("time from the trajectory's start [s]")
+    same = units[0] if units and all(u == units[0] for u in units) else ""
+    ax.set_ylabel(f"abs. error [{same}]" if same else "abs. error")
     ax.grid(True, which="both", alpha=0.3)
     return _save(fig, path)

@@ -280,11 +280,13 @@ def evaluate(
     input_hold: str = "constant",
     plot: str | Path | None = None,
     force: bool = False,
+    label: str | None = None,
 ) -> PredictResult:
     """One-step and rollout errors of ``model`` on trajectories ``traj_ids`` of ``data``.
 
     ``plot``: a PNG to write; an existing file is overwritten only if softpinn wrote it (a
-    plot of an earlier call) or ``force``."""
+    plot of an earlier call) or ``force``; ``label`` names the model in its title (default:
+    its kind)."""
     horizon = _check_positive("horizon", horizon, allow_none=False)
     if plot is not None:
         from .plots import check_may_write
@@ -323,14 +325,17 @@ def evaluate(
         from .plots import plot_rollout
 
         ro = rolls[0]
-        what = f"trajectory {ro['id']}, horizon {horizon:g} s"
+        what = f"{label or cfg.kind}: trajectory {ro['id']} of {Path(str(data.path)).name}, " \
+               f"horizon {horizon:g} s"
         if reset_every:
             what += f", reset every {reset_every:g} s"
         if dt:
             what += f", dt {dt:g} s"
-        plot_path = str(
-            plot_rollout(ro["t"], ro["q_true"], ro["q_pred"], plot, title=what, resets=ro["resets"])
-        )
+        spec = data.meta.get("spec") if isinstance(data.meta, dict) else None
+        plot_path = str(plot_rollout(
+            ro["t"], ro["q_true"], ro["q_pred"], plot, title=what, resets=ro["resets"],
+            names=data.meta.get("coordinates") if isinstance(data.meta, dict) else None,
+            kind=spec.get("kind") if isinstance(spec, dict) else None))
     return PredictResult(
         one_step_error={
             "mean": float(np.mean(errs)),
@@ -403,6 +408,7 @@ def predict(
         input_hold=tc.input_hold,
         plot=plot,
         force=force,
+        label=f"{Path(run.run_dir).name} ({cfg.kind})",
     )
     res.extra = {
         "run": str(run.run_dir),

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.report.rollouts import (
-    coordinate_unit,
     diverged_at,
     finite_percentile,
     finite_points,
     rollout_figure,
 )
+from softpinn.learn.plots import coordinate_unit
 
 
 def _truth(n=3, samples=200):

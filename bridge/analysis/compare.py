@@ -241,7 +241,7 @@ def analyze(
     names = getattr(spec, "coordinate_names", None)
     units = None
     if names is not None:
-        from ..report.rollouts import coordinate_unit
+        from softpinn.learn.plots import coordinate_unit
 
         units = [coordinate_unit(c, spec.kind) for c in names]
     sweeps = None

@@ -22,17 +22,6 @@ STYLES = {"lagrangian": "--", "hamiltonian": "-.", "blackbox": ":"}
 DIVERGED_FACTOR = 1e3
 
 
-def coordinate_unit(name: str, kind: str) -> str:
-    """The unit of a coordinate from its name (``theta1`` -> rad, ``dL2`` -> m) and the spec's
-    kind (the double pendulum's angles, the mass-spring-damper's positions)."""
-    base = name.rstrip("0123456789")
-    if base in ("theta", "phi") or kind == "double-pendulum":
-        return "rad"
-    if base in ("dL", "dx", "dy") or kind == "mass-spring-damper":
-        return "m"
-    return ""
-
-
 def finite_percentile(a: np.ndarray, p: float) -> np.ndarray:
     """The ``p``-th percentile of each column of ``a`` (2-D) over its finite entries, as
     ``np.nanpercentile(a, p, axis=0)`` with non-finite entries as NaN (linear interpolation);

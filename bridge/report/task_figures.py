@@ -9,13 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
+from softpinn.learn.plots import coordinate_unit
 from softpinn.symbolic.shape import PCC_KINDS
 
 from ..errors import UserError
 from .figsave import save_for_print
 from .paper import load_paper_tables
 from .rollouts import NETWORK as _NETWORK
-from .rollouts import coordinate_unit, finite_points, horizon_figure, rollout_figure
+from .rollouts import finite_points, horizon_figure, rollout_figure
 from .shape import shape_animation, shape_figure
 from .tables import format_mean_std
 
