@@ -395,7 +395,10 @@ def initial_model(run_dir: str, model_config):
     return run.model
 
 
-def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test) -> MemberResult:
+def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
+                  interrupted: bool = False) -> MemberResult:
+    """Write member k's best model, history and metrics; ``interrupted``: the run stops here
+    on Ctrl-C, and a member still training says so ("interrupted at epoch E")."""
     mdir = member_dir(run_dir, seed, K)
     model = g.member_model(k)
     hist = g.history[k]
@@ -413,6 +416,9 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test) -> Membe
         "train_pairs": n_train,
         "test_pairs": n_test,
     }
+    if interrupted and g.stopped[k] == "running":
+        lbfgs = f" + {int(g.lbfgs_done)} L-BFGS iterations" if g.lbfgs_done else ""
+        metrics["stopped"] = f"interrupted at epoch {int(g.epoch)}{lbfgs} (--resume continues)"
     ckpt.save_tree(mdir / "model.eqx", eqx.filter(model, eqx.is_array), {"seed": seed},
                    record=True)
     ckpt.write_history(mdir / "history.csv", hist, record=True)

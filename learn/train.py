@@ -323,7 +323,8 @@ def train(
                     raise
                 # leave a loadable run: best model so far, history and metrics
                 for k, s in enumerate(g.seeds):
-                    finish_member(g, k, s, run_dir, K, train_np.count, test_np.count)
+                    finish_member(g, k, s, run_dir, K, train_np.count, test_np.count,
+                                  interrupted=isinstance(exc, KeyboardInterrupt))
                 raise
         for k, s in enumerate(g.seeds):
             members.append(finish_member(g, k, s, run_dir, K, train_np.count, test_np.count))

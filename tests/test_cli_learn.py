@@ -247,3 +247,28 @@ def test_predict_says_which_rollouts_ran_away():
                                    "2: 2.0000e-01 ± 1.000e-01")
     res.rollout_errors = [0.1, 0.2, 0.3]
     assert _ran_away_text(res) == ""
+
+
+def test_an_interrupted_run_says_how_to_go_on(data, tmp_path, capsys):
+    """Ctrl-C: the message says how to continue, and predict on the unfinished run says it is
+    one (its metrics.json: "interrupted at epoch E")."""
+    from types import SimpleNamespace
+
+    from datagen import blackbox_train_config
+
+    from softpinn.bridge.cli import _resume_hint
+    from softpinn.learn.train import train
+
+    def stop_at_2(info):
+        if info["epoch"] == 2:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "cut"
+    with pytest.raises(KeyboardInterrupt):
+        train(data, blackbox_train_config(epochs=12), out, progress=stop_at_2)
+    assert "--resume continues" in _resume_hint(SimpleNamespace(command="train", out=str(out)))
+    assert _resume_hint(SimpleNamespace(command="train", out=str(tmp_path / "none"))) == ""
+    capsys.readouterr()
+    assert main(["predict", str(out), str(data), "--horizon", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"the training of {out} was interrupted at epoch 2: its model is the best so far" in err

@@ -159,7 +159,10 @@ def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
         range(6)
     )
     assert load_run(tmp_path / "part").seed == 0
+    assert ckpt.read_json(tmp_path / "part" / "metrics.json")["stopped"] == (
+        "interrupted at epoch 5 (--resume continues)")
     resumed = train(msd, None, tmp_path / "part", resume=True)
+    assert resumed.members[0].metrics["stopped"].startswith("completed")
     assert_same_params(resumed.model, full.model, exact=True)
     strip = lambda h: [(r["epoch"], r["train_loss"], r["test_loss"]) for r in h]
     assert strip(resumed.members[0].history) == strip(full.members[0].history)

@@ -88,6 +88,19 @@ def _as_flag(message: str, parser: argparse.ArgumentParser, args) -> str:
     return message
 
 
+def _resume_hint(args) -> str:
+    """How to go on after Ctrl-C where a command can: train's checkpoint, reproduce's stages."""
+    from pathlib import Path
+
+    out = getattr(args, "out", None)
+    if args.command == "train" and out and (Path(out) / "checkpoint.eqx").is_file():
+        return (f"; {out} keeps the last finished epoch: the same command with --resume "
+                "continues from there")
+    if args.command == "reproduce" and out and Path(out).is_dir():
+        return f"; the same command again reuses the finished stages in {out}"
+    return ""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -98,7 +111,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         status = args.func(args)
     except KeyboardInterrupt:
-        print("softpinn: interrupted", file=sys.stderr)
+        print(f"softpinn: interrupted{_resume_hint(args)}", file=sys.stderr)
         return 130
     except Exception as exc:
         if is_user_error(exc):

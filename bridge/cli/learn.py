@@ -375,6 +375,25 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _note_interrupted(run_dir) -> None:
+    """A note on stderr where the run's training was interrupted: its model is the best so far,
+    not a finished run's."""
+    from pathlib import Path
+
+    from softpinn.learn.checkpoint import read_json
+
+    try:
+        metrics = read_json(Path(run_dir) / "metrics.json")
+    except Exception:  # noqa: BLE001 - no metrics: nothing to say
+        return
+    stops = [m.get("stopped", "") for m in metrics.get("members", [metrics])
+             if isinstance(m, dict)]
+    cut = [s for s in stops if str(s).startswith("interrupted")]
+    if cut:
+        print(f"softpinn: note: the training of {run_dir} was {cut[0].split(' (')[0]}: its "
+              "model is the best so far (train --resume finishes it)", file=sys.stderr)
+
+
 def _ran_away_text(res) -> str:
     """'; 1 of 4 ran away (trajectory 11, at t = 15.3 s), the other 3: 0.016 ± 0.009', or ''."""
     import numpy as np
@@ -519,6 +538,7 @@ def cmd_predict(args) -> int:
         force=args.force,
     )
     out = res.to_json()
+    _note_interrupted(out["run"])
     if args.json:
         print(json.dumps(out, allow_nan=False))
         return 0
