@@ -166,6 +166,9 @@ def _write(out: Path, manifest: dict) -> None:
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as f:
             f.write(text)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp, 0o666 & ~mask)  # as any file the user writes, not mkstemp's 0600
         os.replace(tmp, out / MANIFEST)
     finally:
         if os.path.exists(tmp):

@@ -51,6 +51,13 @@ def cannot_write(path: Path, exc: OSError) -> UserError:
     return UserError(f"{path}: cannot write there ({exc.strerror or exc})")
 
 
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and setting it back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def atomic_write_bytes(path: str | Path, data: bytes, *, record: bool = False) -> Path:
     """Write ``data`` to ``path`` through a temporary file and ``os.replace``.
 
@@ -68,6 +75,7 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, record: bool = False) -
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp's 0600 would hide runs from colleagues
         os.replace(tmp, path)
     except BaseException as exc:
         if os.path.exists(tmp):

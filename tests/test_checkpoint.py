@@ -90,3 +90,16 @@ def test_prepare_run_dir(tmp_path):
     f.write_text("")
     with pytest.raises(UserError, match="is a file"):
         ckpt.prepare_run_dir(f)
+
+
+def test_written_files_follow_the_umask(tmp_path):
+    """Run files are readable as any file the user writes (umask 022: 0644), not mkstemp's
+    0600, which hid runs from colleagues on a shared machine."""
+    import stat
+
+    old = os.umask(0o022)
+    try:
+        path = ckpt.atomic_write_bytes(tmp_path / "x.bin", b"data")
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o644
