@@ -107,21 +107,25 @@ def register(subparsers) -> None:
         "simulate",
         help="simulate trajectories of a model into a dataset file (.npz)",
         description="Simulate trajectories (compiled equations of motion, cvodes or fixed-step "
-        "RK4) and write a dataset file. Defaults come from the preset's [data] table (the "
-        "paper's settings).",
+        "RK4) and write a dataset file. Every setting not given comes from the spec's [data] "
+        "table (a preset's: the paper's settings), or, for a spec without one, from defaults "
+        "worked out from its physics (printed when used).",
     )
     p.add_argument("model", metavar="MODEL",
                    help="preset name (see 'softpinn models') or spec file")
     p.add_argument("--out", required=True, metavar="FILE.npz", help="dataset file to write")
-    p.add_argument("--trajectories", type=int, metavar="K", help="number of trajectories")
-    p.add_argument("--duration", type=float, metavar="S", help="seconds per trajectory")
+    p.add_argument("--trajectories", type=int, metavar="K",
+                   help="number of trajectories (default: [data]'s train and test counts)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="seconds per trajectory (default: [data] duration)")
     p.add_argument(
         "--settle",
         type=float,
         metavar="S",
-        help="seconds simulated before recording starts (default: [data] settle, else 0)",
+        help="seconds simulated before recording starts (default: [data] settle)",
     )
-    p.add_argument("--rate", type=float, metavar="HZ", help="output rate [Hz]")
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="output rate [Hz] (default: [data] rate)")
     p.add_argument(
         "--dt", type=float, metavar="S", help="fixed RK4 step [s] (implies --integrator rk4)"
     )
@@ -135,19 +139,22 @@ def register(subparsers) -> None:
                    "the CPU, its JAX translation on a GPU or with --no-compile; default: the "
                    "spec's)")
     p.add_argument("--signal", choices=SIGNALS, help="input signal kind (ranges from [data])")
-    p.add_argument("--seed", type=int, metavar="S", help="random seed")
+    p.add_argument("--seed", type=int, metavar="S", help="random seed (default: [data] seed)")
     p.add_argument(
         "--noise",
         type=float,
         metavar="SIGMA",
-        help="standard deviation of Gaussian measurement noise (default 0)",
+        help="standard deviation of Gaussian measurement noise (default: [data] noise, "
+        "else 0)",
     )
     p.add_argument("--equilibria", type=int, default=0, metavar="K",
                    help="also store K stable static equilibria G(q*) = A(q*) u* under constant "
                    "inputs drawn in the signals' input box (eq_q, eq_u, eq_force; labels for "
                    "train --equilibrium-weight; default 0: none)")
-    p.add_argument("--rtol", type=float, help="cvodes relative tolerance (default 1e-10)")
-    p.add_argument("--atol", type=float, help="cvodes absolute tolerance (default 1e-10)")
+    p.add_argument("--rtol", type=float,
+                   help="cvodes relative tolerance (default: [data] rtol, else 1e-10)")
+    p.add_argument("--atol", type=float,
+                   help="cvodes absolute tolerance (default: [data] atol, else 1e-10)")
     p.add_argument(
         "--threads",
         type=int,
