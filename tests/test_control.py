@@ -612,6 +612,10 @@ def test_cli_bad_inputs(specs, runs, tmp_path, capsys):
     err = error(specs["forced"], "--runs", run, "--member", 5, "--out", a)
     assert "--member 5" in err and "single-model run" in err
     assert "has no inputs" in error("task1", "--out", a)
+    # a run of another arm: named, with its size and data, before anything is exported
+    err = error("task4", "--runs", run, "--out", a)
+    assert f"runs: {run} models an arm of n = 2 coordinates (trained on test-msd data); the " \
+        "plant has" in err
     assert "--center: expected 2" in error(specs["forced"], "--center", 0.1, "--out", a)
     assert "--u-min: expected 1 values" in error(specs["forced"], "--u-min", 1, 2, "--out", a)
     assert "--rate" in error(specs["forced"], "--rate", 0, "--out", a)

@@ -181,6 +181,21 @@ def resolve_run(path) -> tuple[Path, str]:
                     "directory (no model.json)")
 
 
+def _check_sizes(path, directory: Path, output: ca.Function) -> None:
+    """One line before any export where a run models another arm than the plant's."""
+    try:
+        info = json.loads((directory / "config.json").read_text())
+        n = int(info["model"]["n"])
+        data = info.get("dataset") or {}
+    except (OSError, ValueError, KeyError, TypeError):
+        return  # the export says what is wrong
+    if n != output.size1_in(0):
+        what = f" (trained on {data['name']} data)" if data.get("name") else ""
+        raise UserError(f"runs: {path} models an arm of n = {n} coordinates{what}; the plant "
+                        f"has {output.size1_in(0)}: give runs trained on data of the plant's "
+                        "model")
+
+
 def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
              member: int | None = None, mean: bool = False, force: bool = True,
              compiler=None) -> PredictionModel:
@@ -189,6 +204,8 @@ def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
     import time
 
     directory, what = resolve_run(path)
+    if what == "run":
+        _check_sizes(path, directory, output)
     seconds = 0.0
     if what == "run":
         from ..export import export_run

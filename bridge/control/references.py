@@ -18,6 +18,8 @@ its input signals: the region the models were trained on.
 
 from __future__ import annotations
 
+import logging
+
 import casadi as ca
 import numpy as np
 
@@ -66,7 +68,13 @@ def default_input_bounds(spec) -> tuple[np.ndarray, np.ndarray] | None:
 
     if not spec.m:
         return None
-    plan = plan_dataset(spec)
+    quiet = logging.getLogger("softpinn.symbolic")  # the physics defaults' note is simulate's
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        plan = plan_dataset(spec)
+    finally:
+        quiet.setLevel(level)
     sim = plan.sim
     _, signals = draw_trajectories(plan.data, spec.n, spec.m, range(plan.trajectories),
                                    kind=plan.signal, duration=sim.duration + plan.settle,
