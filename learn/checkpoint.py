@@ -243,13 +243,9 @@ def read_history(path: str | Path) -> list[dict]:
     ]
 
 
-def prepare_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
-    """Make sure ``out_dir`` may be written.
-
-    A directory that holds anything is refused unless ``resume`` (continue it) or ``force``
-    (remove the files its manifest lists, i.e. those softpinn wrote, and member folders; a run
-    without a manifest loses only the names in :data:`RUN_FILES`; nothing else is deleted).
-    """
+def check_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
+    """The refusals of :func:`prepare_run_dir`, without writing or removing anything (so that a
+    command can give them before its work starts)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise UserError(f"run directory {out} is a file")
@@ -263,12 +259,25 @@ def prepare_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = 
         if not (out / "config.json").is_file():
             raise UserError(f"--resume: {out} holds no run to resume (no config.json)")
         return out
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise UserError(
+            f"run directory {out} already exists and is not empty; "
+            "use --force to overwrite it or --resume to continue it"
+        )
+    return out
+
+
+def prepare_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
+    """Make sure ``out_dir`` may be written.
+
+    A directory that holds anything is refused unless ``resume`` (continue it) or ``force``
+    (remove the files its manifest lists, i.e. those softpinn wrote, and member folders; a run
+    without a manifest loses only the names in :data:`RUN_FILES`; nothing else is deleted).
+    """
+    out = check_run_dir(out_dir, force=force, resume=resume)
+    if resume:
+        return out
     if out.is_dir() and any(out.iterdir()):
-        if not force:
-            raise UserError(
-                f"run directory {out} already exists and is not empty; "
-                "use --force to overwrite it or --resume to continue it"
-            )
         for p in out.glob(MEMBER_PREFIX + "*"):
             if p.is_dir() and (p / "config.json").exists():
                 remove_written(p)

@@ -79,6 +79,10 @@ def test_train_json_resume_and_force(data, run, capsys, tmp_path):
     assert m["best_test_loss"]["mean"] == ref["best_test_loss"]
     assert main(["train", str(data), "--out", str(out), *TRAIN]) == 2
     assert "already exists and is not empty; use --force" in _error_line(capsys)
+    # refused before any work: no progress bar before the one line
+    loud = [f for f in TRAIN if f != "--quiet"]
+    assert main(["train", str(data), "--out", str(out), *loud]) == 2
+    assert "already exists and is not empty; use --force" in _error_line(capsys)
     assert main(["train", str(data), "--out", str(out), "--resume", "--quiet"]) == 0
     assert main(["train", str(data), "--out", str(out), *TRAIN, "--force"]) == 0
 

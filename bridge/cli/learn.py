@@ -308,6 +308,9 @@ def cmd_train(args) -> int:
 
     if args.resume and args.force:
         raise UserError("--resume and --force exclude each other")
+    from softpinn.learn.checkpoint import check_run_dir
+
+    check_run_dir(args.out, force=args.force, resume=args.resume)  # before any work or bar
     if args.test_trajectories is not None and args.test_count is not None:
         raise UserError("give --test-trajectories or --test-count, not both")
     if args.resume:
