@@ -89,6 +89,32 @@ def test_cli_table_json_and_refusals(tmp_path, capsys):
         assert len(err) == 1 and message in err[0], (argv, err)
 
 
+def test_a_coordinate_the_recording_does_not_observe_is_said_so(tmp_path, capsys):
+    """An import that could not measure a coordinate (a tip IMU's stretch, set to 0) records
+    it in meta; the table marks the directions along it 'not observed' instead of a ratio of
+    made-up numbers, and leaves them out of its verdict."""
+    import json
+
+    from datagen import make_dataset, write
+
+    from softpinn.bridge.cli import main
+
+    path = make_dataset(tmp_path / "msd.npz", forced=False, trajectories=3, duration=3.0)
+    arrays = dict(np.load(path))
+    meta = json.loads(str(arrays.pop("meta")))
+    blind = load_spec("task1").coordinate_names[0]
+    meta["import"] = {"unobserved": [blind]}
+    path = write(tmp_path / "imu.npz", arrays, meta)
+    assert main(["excitation", str(path), "task1", "--samples", "50"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    rows = [ln for ln in lines[2:] if ln.split()[0].isdigit()]
+    assert any(blind in r and r.rstrip().endswith("not observed") for r in rows)
+    assert any(ln.startswith(f"not observed: {blind} (the recording cannot measure it")
+               for ln in lines)
+    assert main(["excitation", str(path), "task1", "--samples", "50", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["unobserved"] == [blind]
+
+
 def test_velocity_report_prints_an_undefined_ratio_as_a_dash():
     # a saved share holds NaN/inf as null: the study's table prints them, never fails on them
     from softpinn.bridge.challenges.velocity_report import _excitation_lines

@@ -52,29 +52,44 @@ def cmd_excitation(args) -> int:
     share, samples = data_share(TrueModel(spec), data, args.trajectories, count=args.samples)
     ids = sorted(set(int(i) for i in data.traj)) if args.trajectories is None \
         else sorted(set(args.trajectories))
+    record = data.meta.get("import") if isinstance(data.meta, dict) else None
+    unobserved = [c for c in (record or {}).get("unobserved", []) if c in spec.coordinate_names]
     if args.json:
         print(json.dumps(to_jsonable({  # NaN and inf as null
             "model": spec.name, "data": str(args.data), "samples": samples, "trajectories": ids,
-            "coordinates": list(spec.coordinate_names), **share})))
+            "coordinates": list(spec.coordinate_names), "unobserved": unobserved, **share})))
         return 0
-    for line in _table(spec, share, args.data, samples, len(ids)):
+    for line in _table(spec, share, args.data, samples, len(ids), unobserved):
         print(line)
     return 0
 
 
-def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str]:
+def _blind(vector, names, unobserved) -> bool:
+    """Whether a direction moves a coordinate the data do not observe (import set it to 0)."""
+    return any(vector[names.index(c)] >= 0.3 for c in unobserved)
+
+
+def _table(spec, share: dict, path, samples: int, trajectories: int,
+           unobserved=()) -> list[str]:
     names = list(spec.coordinate_names)
     lines = [f"{spec.name} on {path}: {samples} samples of {trajectories} trajector"
              f"{'y' if trajectories == 1 else 'ies'}; directions of the true M(q), lightest first",
              f"{'':3} {'mostly':<12} {'M eigenvalue':>12} {'corner':>9} {'inertia':>9} "
              f"{'damping':>9} {'rest':>9} {'inertia/damping':>16}"]
+    blind = [i + 1 for i, vec in enumerate(share["vectors"]) if _blind(vec, names, unobserved)]
     for i, vec in enumerate(share["vectors"]):
-        ratio = share["inertia_over_damping"][i]
+        ratio = "not observed" if i + 1 in blind else ratio_text(share["inertia_over_damping"][i])
         lines.append(
             f"{i + 1:>3} {mostly(vec, names):<12} {share['eigenvalue'][i]:>12.3g} "
             f"{share['corner_hz'][i]:>6.3g} Hz {share['inertial'][i]:>9.3g} "
-            f"{share['damping'][i]:>9.3g} {share['rest'][i]:>9.3g} {ratio_text(ratio):>16}")
-    weak = weak_directions(share)
+            f"{share['damping'][i]:>9.3g} {share['rest'][i]:>9.3g} {ratio:>16}")
+    weak = [i for i in weak_directions(share) if i not in blind]
+    if blind:
+        lines.append(
+            f"not observed: {', '.join(unobserved)} (the recording cannot measure "
+            f"{'it' if len(unobserved) == 1 else 'them'}; import set the value to 0), so "
+            f"direction{'s' if len(blind) > 1 else ''} {', '.join(map(str, blind))} say nothing "
+            "of the arm")
     if weak:
         corner = max(share["corner_hz"][i - 1] for i in weak)
         lines.append(
@@ -84,6 +99,6 @@ def _table(spec, share: dict, path, samples: int, trajectories: int) -> list[str
             f"the corner frequency ({corner:.3g} Hz) show it (docs/challenges.md, \"Data that "
             f"show the mass\")")
     else:
-        lines.append(f"every direction shows its inertia (at least {100 * WEAK:g} % of its "
-                     f"damping, or no damping along it)")
+        lines.append(f"every {'observed ' if blind else ''}direction shows its inertia (at "
+                     f"least {100 * WEAK:g} % of its damping, or no damping along it)")
     return lines
