@@ -81,6 +81,29 @@ def configurations_from_orientation(spec: ModelSpec, rec: Recording, kind: str):
     return q, twist
 
 
+def _unit_notes(spec, recs, files) -> list[str]:
+    """Notes on what looks like a mistake the data cannot refuse: the same file twice, times in
+    milliseconds, angles in degrees."""
+    notes = []
+    seen: dict[str, str] = {}
+    for f in files:
+        if f.sha256 in seen:
+            notes.append(f"{f.path} is the same recording as {seen[f.sha256]} (equal sha256): "
+                         "its trajectories appear twice")
+        seen.setdefault(f.sha256, f.path)
+    steps = np.concatenate([np.diff(r.t) for r in recs])
+    if len(steps) and float(np.median(steps)) > 1.0:
+        notes.append(f"the recordings' times step by {float(np.median(steps)):.4g} (median): "
+                     "softpinn reads t in seconds; if yours are milliseconds, divide t by 1000")
+    for j, name in enumerate(spec.coordinate_names):
+        if name.rstrip("0123456789") in ("theta", "phi") and not any(r.q is None for r in recs):
+            top = max(float(np.max(np.abs(r.q[:, j]))) for r in recs)
+            if top > 2 * np.pi:
+                notes.append(f"{name} reaches {top:.4g}: softpinn reads angles in radians; if "
+                             "these are degrees, multiply by pi / 180")
+    return notes
+
+
 def import_recordings(
     paths: Sequence[str | Path],
     model: str | Path | ModelSpec,
@@ -170,6 +193,7 @@ def import_recordings(
         if rate > raw_rate * (1 + 1e-9):
             notes.append(f"--rate {rate:g} Hz is above the recordings' {raw_rate:.4g} Hz: the "
                          "extra samples are interpolated, not measured")
+    notes += _unit_notes(spec, recs, files)
     ids = list(range(K))
     ntest = int(test_trajectories)
     splits = {"train": ids[: K - ntest], "test": ids[K - ntest :],

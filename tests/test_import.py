@@ -308,3 +308,20 @@ def test_recorded_velocities_are_used(sim, tmp_path):
     cols.pop("qd2")
     with pytest.raises(RecordingError, match=r"column 'qd2': missing column"):
         import_recordings([write_csv(tmp_path / "w.csv", cols)], "task4")
+
+
+def test_notes_on_units_and_a_file_given_twice(tmp_path):
+    """What the data cannot refuse but is likely a mistake gets a note: the same file twice,
+    times in milliseconds, angles in degrees; radians and seconds get none."""
+    t = np.arange(0.0, 2.0, 0.01)
+    good = {"t": t, "u0": 0.1 * np.sin(t), "q0": 0.5 * np.sin(3 * t), "q1": 0.01 * np.cos(t)}
+    path = write_csv(tmp_path / "good.csv", good)
+    assert import_recordings([path], "task3").notes == []
+    notes = import_recordings([path, path], "task3").notes
+    assert any("is the same recording as" in n and "appear twice" in n for n in notes)
+    ms = write_csv(tmp_path / "ms.csv", {**good, "t": 1000 * t})
+    assert any("times step by 10 (median)" in n and "divide t by 1000" in n
+               for n in import_recordings([ms], "task3").notes)
+    deg = write_csv(tmp_path / "deg.csv", {**good, "q0": np.degrees(good["q0"]) * 4})
+    assert any(n.startswith("theta1 reaches") and "if these are degrees" in n
+               for n in import_recordings([deg], "task3").notes)
