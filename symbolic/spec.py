@@ -198,8 +198,10 @@ def load_spec(model: str | Path | ModelSpec) -> ModelSpec:
         return spec_from_toml(path.read_text(encoding="utf-8"), source=f"preset:{text}")
     path = Path(text)
     if path.suffix != ".toml" and not path.exists():
+        toml = path.with_name(path.name + ".toml")
+        hint = f"; did you mean {toml}?" if toml.is_file() else ""
         raise SpecError(
-            f"unknown model {text!r}: not a preset ({', '.join(presets)}) and no such file"
+            f"unknown model {text!r}: not a preset ({', '.join(presets)}) and no such file{hint}"
         )
     if path.is_dir():
         raise SpecError(f"{text}: is a folder, not a spec file")
