@@ -25,6 +25,7 @@ import numpy as np
 
 from . import filters, orientation
 from .datafile import FORMAT, FORMAT_VERSION, DatasetArrays
+from .outputs import count_of
 from .recorded import ORIENTATION_COLUMNS, Recording, RecordingError, read_recordings
 from .spec import ModelSpec, load_spec
 
@@ -48,7 +49,7 @@ class ImportResult:
 
 def _orientation_model(spec: ModelSpec, kind: str) -> None:
     if spec.kind != "spatial-pcc" or len(spec.segments) != 1:
-        what = (f"{spec.kind} with {len(spec.segments)} segments" if spec.segments
+        what = (f"{spec.kind} with {count_of(len(spec.segments), 'segment')}" if spec.segments
                 else spec.kind)
         raise RecordingError(
             f"orientation: --orientation {kind} needs a one-segment spatial-pcc model (the tip "
@@ -141,8 +142,9 @@ def import_recordings(
     sources = []
     for k, rec in enumerate(recs):
         if len(rec.t) < max(2, sm.min_samples):
-            raise RecordingError(f"{rec.where}: {len(rec.t)} samples; smoothing {sm.label} needs "
-                                 f"at least {max(2, sm.min_samples)} per trajectory")
+            raise RecordingError(f"{rec.where}: {count_of(len(rec.t), 'sample')}; smoothing "
+                                 f"{sm.label} needs at least {max(2, sm.min_samples)} per "
+                                 "trajectory")
         if orientation_kind is not None:
             q_raw, twist = configurations_from_orientation(spec, rec, orientation_kind)
             twists.append(twist)

@@ -147,3 +147,8 @@ def dumps(value: Any, *, what: str = "output", **kwargs) -> str:
         raise UserError(
             f"{what}: {where} is not a finite number; JSON cannot hold NaN or infinity"
         ) from None
+
+
+def count_of(count: int, word: str, plural: str | None = None) -> str:
+    """'1 segment', '2 segments', '0 trajectories' (``plural``: an irregular plural)."""
+    return f"{count} {word if count == 1 else (plural or word + 's')}"

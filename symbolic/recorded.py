@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import UserError
+from .outputs import count_of
 
 ORIENTATIONS = ("quaternion", "rpy")
 ORIENTATION_COLUMNS = {"quaternion": ("qw", "qx", "qy", "qz"), "rpy": ("roll", "pitch", "yaw")}
@@ -54,7 +55,8 @@ class Recording:
     @property
     def where(self) -> str:
         what = f"{self.file} (trajectory {self.traj})" if self.traj is not None else self.file
-        return f"{what}, lines {int(self.lines[0])}-{int(self.lines[-1])}"
+        first, last = int(self.lines[0]), int(self.lines[-1])
+        return f"{what}, line {first}" if first == last else f"{what}, lines {first}-{last}"
 
 
 @dataclass
@@ -178,7 +180,8 @@ def _check_indexed(f: CsvFile, prefix: str, count: int, what: str, model: str, *
     names = f"{prefix}0 .. {prefix}{count - 1}" if count > 1 else f"{prefix}0"
     extra = sorted(k for k in have if k >= count)
     if extra:
-        has = f"m = {count} inputs" if prefix == "u" else f"n = {count} coordinates"
+        has = (f"m = {count_of(count, 'input')}" if prefix == "u"
+               else f"n = {count_of(count, 'coordinate')}")
         expect = f" ({names})" if count else ""
         f.fail(None, have[extra[0]], f"model {model} has {has}{expect}; the file has "
                f"{max(have) + 1} {what} columns")
@@ -186,7 +189,8 @@ def _check_indexed(f: CsvFile, prefix: str, count: int, what: str, model: str, *
         return None
     missing = [k for k in range(count) if k not in have]
     if missing:
-        has = f"m = {count} inputs" if prefix == "u" else f"n = {count} coordinates"
+        has = (f"m = {count_of(count, 'input')}" if prefix == "u"
+               else f"n = {count_of(count, 'coordinate')}")
         f.fail(None, f"{prefix}{missing[0]}", f"missing column (model {model} has {has}: "
                f"{names})")
     return [have[k] for k in range(count)]

@@ -42,6 +42,7 @@ import numpy as np
 
 from . import orientation
 from .errors import UserError
+from .outputs import count_of
 
 KINDS = ("imu",)
 OUTPUTS = ("rpy", "quaternion")
@@ -107,7 +108,7 @@ def parse_sensor(raw: Mapping[str, Any], *, kind: str, segments: int) -> SensorC
         raise SensorError("sensor.kind", f"expected one of {', '.join(KINDS)}, got "
                           f"{raw['kind']!r}")
     if kind != "spatial-pcc" or segments != 1:
-        what = f"{kind} with {segments} segments" if segments else kind
+        what = f"{kind} with {count_of(segments, 'segment')}" if segments else kind
         raise SensorError("sensor.kind", f"an imu measures the tip orientation, which "
                           f"determines the bending of a one-segment spatial-pcc arm only; this "
                           f"model is {what}")

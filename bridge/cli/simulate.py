@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from softpinn.symbolic.errors import UserError
+from softpinn.symbolic.outputs import count_of
 
 from .checks import check_writable, positive, warnings_as_lines
 
@@ -131,7 +132,8 @@ def cmd_simulate(args) -> int:
     write_datasets([(out, data), *zip(targets[1:], subs, strict=True)], force=args.force)
     k, per = data.meta["trajectories"], data.meta["samples_per_trajectory"]
     print(
-        f"{spec.name}: wrote {out} ({k} trajectories x {per} samples at "
+        f"{spec.name}: wrote {out} ({count_of(k, 'trajectory', 'trajectories')} x "
+        f"{count_of(per, 'sample')} at "
         f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}"
         f"{_batch_word(data) if use_jax else ''}) in {seconds:.2f} s"
     )
