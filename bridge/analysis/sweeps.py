@@ -67,14 +67,14 @@ class Sweeps:
 def sweep_points(q: np.ndarray, *, points: int = POINTS,
                  max_coordinates: int = MAX_COORDINATES) -> list[tuple[int, np.ndarray]]:
     """(coordinate, (points, n) configurations) for the coordinates the configurations ``q``
-    (N, n) spread most over (largest range first; none that never moves), each running from
-    its smallest to its largest value with the others at their median."""
+    (N, n) spread most over (none that never moves), in the coordinates' order, each running
+    from its smallest to its largest value with the others at their median."""
     q = np.asarray(q, float)
     spread = np.ptp(q, axis=0)
     order = [int(j) for j in np.argsort(-spread, kind="stable") if spread[j] > 0]
     centre = np.median(q, axis=0)
     out = []
-    for j in order[:max_coordinates]:
+    for j in sorted(order[:max_coordinates]):  # the widest, in the coordinates' order
         line = np.repeat(centre[None, :], points, axis=0)
         line[:, j] = np.linspace(q[:, j].min(), q[:, j].max(), points)
         out.append((j, line))

@@ -140,6 +140,14 @@ def plot_transform_entries(
 
 #: How each matrix is labelled in the sweeps figure.
 _SWEEP_LABEL = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
+#: The units of the matrices' entries where every coordinate has the same unit.
+_SWEEP_UNITS = {"m": {"M": "kg", "M_inv": "1/kg", "D": "N s/m", "G": "N"},
+                "rad": {"M": "kg m²", "M_inv": "1/(kg m²)", "D": "N m s/rad", "G": "N m"}}
+
+
+def _coordinate_unit_of(name: str) -> str | None:
+    """'m' of a sweep's axis name 'dL1 [m]' (None without one)."""
+    return name.rsplit(" [", 1)[1].rstrip("]") if name.endswith("]") and " [" in name else None
 
 
 def _sweep_entries(key: str, shape: tuple[int, ...]) -> list[tuple[int, ...]]:
@@ -176,19 +184,28 @@ def plot_sweeps(sweeps, *, path: str | Path | None = None, title: str = "") -> F
         raise UserError("sweeps: no matrix present on both sides")
     fig = Figure(figsize=(3.0 * len(cols) + 1.6, 2.1 * len(keys) + 0.8), layout="constrained")
     axes = fig.subplots(len(keys), len(cols), squeeze=False)
+    units = {_coordinate_unit_of(sw.name) for sw in cols}
+    n = np.asarray(getattr(first.true, keys[0])).shape[1]
+    unit = units.pop() if len(units) == 1 and len(cols) == n else None  # all alike: known
     for r, key in enumerate(keys):
         for c, sw in enumerate(cols):
             ax = axes[r, c]
             x = sw.values
             true, learned = np.asarray(getattr(sw.true, key)), np.asarray(getattr(sw.learned, key))
-            for e, idx in enumerate(_sweep_entries(key, true.shape[1:])):
+            entries = _sweep_entries(key, true.shape[1:])
+            for e, idx in enumerate(entries):
                 color = f"C{e % 10}"
                 name = f"{key}[{','.join(str(i + 1) for i in idx)}]"
-                ax.plot(x, true[(slice(None), *idx)], "-", color=color, lw=1.4, label=name)
-                ax.plot(x, learned[(slice(None), *idx)], "--", color=color, lw=1.4)
+                # the earlier entries wider: a true entry equal to a later one shows beneath it
+                wide = 1.3 + 1.2 * (len(entries) - 1 - e) / max(len(entries) - 1, 1)
+                ax.plot(x, true[(slice(None), *idx)], "-", color=color, lw=wide, label=name,
+                        zorder=2 + e)
+                ax.plot(x, learned[(slice(None), *idx)], "--", color=color, lw=1.4,
+                        zorder=2 + len(entries) + e)
             ax.grid(alpha=0.3)
             if c == 0:
-                ax.set_ylabel(_SWEEP_LABEL.get(key, key))
+                what = _SWEEP_UNITS.get(unit, {}).get(key)
+                ax.set_ylabel(_SWEEP_LABEL.get(key, key) + (f" [{what}]" if what else ""))
             if r == len(keys) - 1:
                 ax.set_xlabel(sw.name)
             if r == 0:
