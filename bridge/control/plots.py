@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from ..report.shape import gravity_up_axis
 from .loop import outside_mask
 
 __all__ = ["write_figures"]
@@ -113,7 +114,8 @@ def write_figures(folder, spec, refs: dict, traces: dict, result: dict) -> list[
             ax.set_xlabel(f"{comps[0]} [{unit}]")
             ax.set_ylabel(f"{comps[1]} [{unit}]")
             ax.set_zlabel(f"{comps[2]} [{unit}]", labelpad=12)
-            ax.invert_zaxis()  # a hanging arm: gravity along +z, drawn downwards
+            if gravity_up_axis(spec):  # a hanging arm: gravity along +z, drawn downwards
+                ax.invert_zaxis()
         else:
             ax = fig.add_subplot()
             if r_full.shape[1] >= 2:

@@ -18,10 +18,14 @@ from .rollouts import COLORS, NETWORK, diverged_at
 
 def _axes(fig, dim: int, where=(1, 1, 1)):
     if dim == 3:
+        from matplotlib.ticker import MaxNLocator
+
         ax = fig.add_subplot(*where, projection="3d")
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_zlabel("z [m]")
+        for axis in (ax.xaxis, ax.yaxis, ax.zaxis):  # fewer ticks: the labels do not overlap
+            axis.set_major_locator(MaxNLocator(4))
+        ax.set_xlabel("x [m]", labelpad=8)
+        ax.set_ylabel("y [m]", labelpad=8)
+        ax.set_zlabel("z [m]", labelpad=8)
     else:
         ax = fig.add_subplot(*where)
         ax.set_xlabel("x [m]")
@@ -31,19 +35,36 @@ def _axes(fig, dim: int, where=(1, 1, 1)):
     return ax
 
 
-def _limits(ax, points: np.ndarray) -> None:
-    """Equal scales on every axis around all points (T, dim, K)."""
+def gravity_up_axis(spec) -> bool:
+    """Whether the spec's gravity points along its vertical axis's positive direction (y of a
+    planar arm, z of a spatial one: a hanging arm), so that a picture turns that axis over to
+    draw gravity downwards."""
+    g = tuple(getattr(spec, "gravity", ()) or ())
+    return len(g) in (2, 3) and g[-1] > 0
+
+
+def _limits(ax, points: np.ndarray, spec=None) -> None:
+    """Equal scales on every axis around all points (T, dim, K); the vertical axis turned over
+    where the spec's gravity points along it (:func:`gravity_up_axis`), and a note of where
+    gravity points."""
     flat = points.transpose(1, 0, 2).reshape(points.shape[1], -1)
     lo, hi = flat.min(axis=1), flat.max(axis=1)
     mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-3) * 1.1
+    flip = spec is not None and gravity_up_axis(spec)
     if points.shape[1] == 3:
         ax.set_xlim(mid[0] - half, mid[0] + half)
         ax.set_ylim(mid[1] - half, mid[1] + half)
-        ax.set_zlim(mid[2] - half, mid[2] + half)
+        ax.set_zlim(*((mid[2] + half, mid[2] - half) if flip else (mid[2] - half, mid[2] + half)))
         ax.set_box_aspect((1, 1, 1), zoom=0.85)
     else:
         ax.set_xlim(mid[0] - half, mid[0] + half)
-        ax.set_ylim(mid[1] - half, mid[1] + half)
+        ax.set_ylim(*((mid[1] + half, mid[1] - half) if flip else (mid[1] - half, mid[1] + half)))
+    g = tuple(getattr(spec, "gravity", ()) or ()) if spec is not None else ()
+    if len(g) in (2, 3) and g[-1] != 0:  # which way is down
+        text = f"gravity ↓ ({'+' if g[-1] > 0 else '−'}{'yz'[len(g) - 2]})"
+        put = ax.text if len(g) == 2 else ax.text2D
+        put(0.98, 0.02, text, ha="right", va="bottom", fontsize=7, color="0.35",
+            transform=ax.transAxes)
 
 
 def _draw(ax, pts: np.ndarray, *, color, style="-", lw=2.0, label=None, alpha=1.0):
@@ -69,7 +90,7 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
     for i, p in enumerate(pts):
         label = labels[i] if labels else ("q = [" + ", ".join(f"{v:.3g}" for v in q[i]) + "]")
         _draw(ax, p, color=f"C{i % 10}", label=label)
-    _limits(ax, pts)
+    _limits(ax, pts, spec)
     ax.legend(fontsize=7, loc="upper left")
     ax.set_title(title or f"{spec.name}: backbone (base ■, tip ●)", fontsize=10)
     path = Path(path)
@@ -113,7 +134,7 @@ def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[s
             if not np.isnan(pts[j]).any():
                 _draw(ax, pts[j], color=COLORS.get(k, "C2"), style="--", lw=1.6,
                       label=NETWORK.get(k, k))
-        _limits(ax, every)
+        _limits(ax, every, spec)
         ax.set_title(f"t = {t[i] - t[0]:.3g} s", fontsize=9)
         if j == 0:
             ax.legend(fontsize=7, loc="upper left")
@@ -153,7 +174,7 @@ def shape_animation(spec, t: np.ndarray, q_true: np.ndarray,
     fig = plt.figure(figsize=(5, 5))
     ax = _axes(fig, dim)
     every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))] for p in preds.values()])
-    _limits(ax, every)
+    _limits(ax, every, spec)
     line_true, = ax.plot(*true_pts[0], "k-", lw=2.2, label="truth")
     lines = {k: ax.plot(*p[0], "--", lw=1.8, color=COLORS.get(k, "C2"),
                         label=NETWORK.get(k, k))[0] for k, p in preds.items()}
