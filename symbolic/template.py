@@ -91,8 +91,9 @@ def spec_template(name: str, segments: int, *, planar: bool = False, hanging: bo
         kb = BEND_K * carried
         cb = BEND_C * carried
         where = " (base)" if i == 0 else (" (tip)" if i == segments - 1 else "")
-        first = "; one table per segment, base to tip" if i == 0 else ""
-        out += ["", _line("[[segment]]", f"segment {i + 1}{where}{first}")]
+        first = ("; one table per segment, base to tip (errors name them so)"
+                 if i == 0 else "")
+        out += ["", _line("[[segment]]", f"segment[{i}]{where}{first}")]
         out += [
             _line(f"length = {_num(LENGTH)}", "rest length L0 [m]"),
             _line(f"mass = {_num(MASS)}", "[kg]"),
