@@ -192,7 +192,7 @@ def _check_indexed(f: CsvFile, prefix: str, count: int, what: str, model: str, *
         has = (f"m = {count_of(count, 'input')}" if prefix == "u"
                else f"n = {count_of(count, 'coordinate')}")
         f.fail(None, f"{prefix}{missing[0]}", f"missing column (model {model} has {has}: "
-               f"{names})")
+               f"{names}; the header has {', '.join(f.columns)})")
     return [have[k] for k in range(count)]
 
 

@@ -215,12 +215,12 @@ GOOD = "t,u0,u1,u2,q0,q1,q2\n0.0,0,0,0,0.1,0.2,0.0\n0.1,0,0,0,0.1,0.2,0.0\n0.2,0
          "number '0.0' in column 1"),
         (GOOD.replace("t,", "time,"), [], "{f}, column 't': missing column (time in seconds"),
         (GOOD.replace(",q1", ",x1"), [], "{f}, column 'q1': missing column (model task4 has "
-         "n = 3 coordinates: q0 .. q2)"),
+         "n = 3 coordinates: q0 .. q2; the header has t, u0, u1, u2, q0, x1, q2)"),
         (GOOD.replace("u2,", "u2,u3,").replace("0,0,0,", "0,0,0,0,"), [],
          "{f}, column 'u3': model task4 has m = 3 inputs (u0 .. u2); the file has 4 input "
          "columns"),
         (GOOD.replace("u2,", "x,"), [], "{f}, column 'u2': missing column (model task4 has "
-         "m = 3 inputs: u0 .. u2)"),
+         "m = 3 inputs: u0 .. u2; the header has t, u0, u1, x, q0, q1, q2)"),
         (GOOD.replace("q2\n", "q2,q3\n").replace(",0.0\n", ",0.0,0.0\n"), [],
          "{f}, column 'q3': model task4 has n = 3 coordinates (q0 .. q2); the file has 4 q "
          "columns"),
