@@ -42,7 +42,8 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True,
                    help="output directory (new, empty, or an earlier analyze's)")
     p.add_argument("--force", action="store_true",
-                   help="write into an --out that holds other files (none is removed)")
+                   help="write into an --out that holds files analyze did not write, or over "
+                   "a file of an earlier analysis that was edited since (nothing is removed)")
     p.add_argument("--model-mismatch-ok", action="store_true",
                    help="compare with MODEL although the run was trained on another model's data")
     p.add_argument("--json", action="store_true", help="print every number as one JSON object")
@@ -71,7 +72,8 @@ def register(subparsers) -> None:
                    help="output directory (new, empty, or an earlier reproduce's: finished "
                         "stages are reused)")
     r.add_argument("--force", action="store_true",
-                   help="write into an --out that holds other files (none is removed)")
+                   help="write into an --out that holds files reproduce did not write, or over "
+                   "a file of an earlier run that was edited since (nothing is removed)")
     r.add_argument("--seeds", type=int, default=1, help="train K seeds, report mean ± std")
     r.add_argument("--epochs", type=int, default=None, help="override every model's epochs")
     r.add_argument("--lbfgs-steps", type=int, default=None,
