@@ -307,3 +307,15 @@ def test_rollouts_that_ran_away_are_counted_beside_inf():
     fine = error_stats([np.array([0.1, 0.3])])
     assert "ran_away" not in fine and _ran_away_text(fine.get("ran_away")) == ""
     assert fine["mean"] == pytest.approx(0.2)
+
+
+def test_percent_text_reads_at_a_glance():
+    from softpinn.bridge.report.tables import percent_text
+
+    assert percent_text(0.21) == "21 %"
+    assert percent_text(0.0035) == "0.35 %"
+    assert percent_text(1.0) == "100 %"
+    assert percent_text(14.0) == "1,400 %"
+    assert percent_text(1.7e-16) == "0 %"
+    assert percent_text(2e-7) == "2.0e-05 %"
+    assert percent_text(None) == percent_text(float("nan")) == "–"

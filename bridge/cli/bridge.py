@@ -222,14 +222,16 @@ def _headline(result) -> list[str]:
     """One line per transform: what its total residual means, the fit's outcome where it is not
     ok, and the residual per matrix in percent (alpha too)."""
     from ..analysis.transform_result import Status, match_word
+    from ..report.tables import percent_text
 
     lines = []
     for name, r in result.results.items():
-        res = ", ".join(f"{k} {100 * v:.2g} %" for k, v in r.residual.items()
+        res = ", ".join(f"{k} {percent_text(v)}" for k, v in r.residual.items()
                         if v is not None and v == v)
         alpha = f", alpha = {r.alpha:.4g}" if name == "alpha" and r.alpha is not None else ""
         fit = "" if r.status == Status.SUCCESS else f" (fit: {r.status})"
-        lines.append(f"{name}: {match_word(r.residual_total)}{fit}{alpha}; residual {res}")
+        lines.append(f"{name}: {match_word(r.residual_total)}{fit}{alpha}; error after the "
+                     f"transform, relative to the true matrix: {res}")
     return lines
 
 

@@ -20,6 +20,7 @@ from matplotlib.figure import Figure
 from ..analysis.transforms import as_stack
 from ..errors import UserError
 from .figsave import figure_dpi
+from .tables import percent_text
 
 _TITLES = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
 
@@ -240,7 +241,7 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
         x, y = terms[k][0].ravel(), terms[k][1].ravel()
         _identity_scatter(ax, x, y)
         err = forces.error[k]
-        ax.set_title(labels[k] + ("" if err is None else f"  ({100 * err:.2g} %)"))
+        ax.set_title(labels[k] + ("" if err is None else f"  (error {percent_text(err)})"))
         ax.set_xlabel("true")
         ax.set_ylabel("learned" if forces.scale == 1 else "learned / α")
     if pair:

@@ -97,6 +97,21 @@ def format_number(x: Cell, precision: int = 3) -> str:
     return f"{x:.{precision}e}"
 
 
+def percent_text(fraction) -> str:
+    """A relative error as a percentage a reader takes in at once: '21 %', '0.35 %', '100 %',
+    '1,400 %'; below 1e-6 % (exact to rounding) '0 %'; '–' where there is none."""
+    if fraction is None or not np.isfinite(fraction):
+        return "–"
+    v = 100.0 * abs(float(fraction))
+    if v < 1e-6:
+        return "0 %"
+    if v >= 100:
+        return f"{v:,.0f} %"
+    if v < 0.01:
+        return f"{v:.1e} %"
+    return f"{v:.2g} %"
+
+
 def format_mean_std(
     mean: float | None,
     std: float | None,
