@@ -150,3 +150,23 @@ def test_analyze_refuses_another_models_physics_and_swapped_arguments(task1_run,
     assert "the order is `softpinn analyze RUN MODEL`" in _err(capsys)
     assert main(["analyze", data, "task1", *args, "--out", str(tmp_path / "d")]) == 2
     assert "RUN is the folder" in _err(capsys)
+
+
+def test_analyze_says_true_is_nominal_for_recorded_data(tmp_path):
+    """A run that learned from `softpinn import`'s recordings: the analysis' "true" matrices
+    are the spec's nominal model, and it says so; simulated data need no note."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from softpinn.bridge.cli.bridge import _recorded_notes
+
+    spec = SimpleNamespace(name="myarm")
+    for source, expect in (("import", 1), (None, 0)):
+        path = tmp_path / f"{source}.npz"
+        np.savez(path, meta=np.array(json.dumps({"source": source})))
+        notes = _recorded_notes(SimpleNamespace(info={"dataset": {"path": str(path)}}), spec)
+        assert len(notes) == expect
+    assert "'true' is the nominal model myarm, not a measurement" in _recorded_notes(
+        SimpleNamespace(info={"dataset": {"path": str(tmp_path / "import.npz")}}), spec)[0]
+    assert _recorded_notes(SimpleNamespace(info={"dataset": {"path": None}}), spec) == []

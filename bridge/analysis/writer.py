@@ -47,9 +47,12 @@ def write_report(
     precision: int = 3,
     max_table_q: int = 5,
     plots: bool = True,
+    notes: list[str] | tuple[str, ...] = (),
 ) -> dict[str, Path]:
     """Write report.md, the tables (Markdown, CSV, LaTeX), analysis.json and the plots into
-    ``out_dir`` (created); returns the written paths by name. Files are replaced atomically."""
+    ``out_dir`` (created); returns the written paths by name. Files are replaced atomically.
+    ``notes``: paragraphs the report gives under its first line (e.g. that the "true" model is
+    a nominal one where the run learned from recordings)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise UserError(f"out: {str(out)!r} exists and is not a directory")
@@ -103,6 +106,7 @@ def write_report(
         f"`{result.learned_kind}`; N = {result.true.N} configurations, n = {result.true.n}, "
         f"m = {result.true.m}.",
         "",
+        *(x for note in notes for x in (note, "")),
         "Relative residual of each matrix in percent, `||P X^ - X||_F / ||X||_F` over all q; "
         "`fit`: whether the transform's least squares went well (`ok`, or why not); `match`: "
         "what the total residual means (`recovered` <= 3 %, `approximate` <= 15 %, else `not "

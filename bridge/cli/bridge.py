@@ -135,7 +135,10 @@ def cmd_analyze(args) -> int:
     samples = _force_samples(run, args.data, args.samples, transforms)
     out = outputs.claim(args.out, "analyze", force=args.force)
     result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
-    paths = write_report(result, out, max_table_q=max(k, 3))
+    notes = _recorded_notes(run, spec)
+    for note in notes:
+        print(f"softpinn: note: {note}", file=sys.stderr)
+    paths = write_report(result, out, max_table_q=max(k, 3), notes=notes)
     outputs.record(out, paths.values())
     if args.json:
         print(json.dumps(result.to_dict()))
@@ -144,6 +147,25 @@ def cmd_analyze(args) -> int:
             print(line)
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
+
+
+def _recorded_notes(run, spec) -> list[str]:
+    """Where the run learned from recordings (``softpinn import``), its "true" matrices are
+    the spec's nominal model, not measurements: say so."""
+    from pathlib import Path
+
+    import numpy as np
+
+    path = (run.info.get("dataset") or {}).get("path")
+    try:
+        with np.load(Path(path), allow_pickle=False) as f:
+            meta = json.loads(str(f["meta"].item()))
+    except Exception:  # noqa: BLE001 - the data set is elsewhere: nothing to say
+        return []
+    if not isinstance(meta, dict) or meta.get("source") != "import":
+        return []
+    return [f"the run learned from recordings ({Path(path).name}); what this analysis calls "
+            f"'true' is the nominal model {spec.name}, not a measurement"]
 
 
 def _check_order(run: str, model: str) -> None:
