@@ -144,8 +144,10 @@ def test_out_holding_other_files_is_refused(capsys, data, tmp_path):
 
 def test_four_trial_sweep_with_asha(local_ray, capsys, data, tmp_path):
     """lr 1e-2 against a hopeless 1e-7, batch 32 and 64; the hopeless trials come last in the
-    grid, so with 2 trials at a time a good one has reached every rung before they start: ASHA
-    stops both at their first rung. Every trial is a run directory; the best one is linked."""
+    grid and the trials run one at a time, so the good ones have reached every rung before the
+    hopeless ones start, however loaded the machine: ASHA stops both at their first rung. (Two
+    at a time, a good trial could lag behind a hopeless one on a busy machine, and ASHA then
+    had nothing to stop it against.) Every trial is a run directory; the best one is linked."""
     import signal
 
     out = tmp_path / "sweep"
@@ -153,7 +155,8 @@ def test_four_trial_sweep_with_asha(local_ray, capsys, data, tmp_path):
     status = main(["sweep", str(data), "--model", "blackbox", "--out", str(out),
                    "--grid", "lr=1e-2,1e-7", "--grid", "batch-size=32,64", "--epochs", "5",
                    "--hidden", "16", "2", "--test-trajectories", "4", "--checkpoint-every",
-                   "1000", "--grace-period", "1", "--quiet", "--json"])
+                   "1000", "--grace-period", "1", "--max-concurrent", "1", "--quiet",
+                   "--json"])
     captured = capsys.readouterr()
     assert status == 0, captured.err
     # Tune installs a SIGINT handler of its own; Ctrl-C after the sweep is the caller's again

@@ -349,7 +349,7 @@ def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> di
             status, stopped_early = f"early stop ({why})", True
         elif stopped.startswith("reached"):
             status = "reached the target loss"
-        elif stopped == "running":
+        elif stopped == "running" or stopped.startswith("interrupted"):  # cut short
             stopped_early = True
             status = (f"stopped by ASHA at epoch {metrics.get('epochs_run')}"
                       if scheduler == "asha" else "interrupted")
