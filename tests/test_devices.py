@@ -93,6 +93,14 @@ def test_more_devices_than_there_are_is_one_line(tmp_path, capsys):
               "--devices", "none"])
     assert exit_.value.code == 2
     assert "expected a count or 'all'" in capsys.readouterr().err
+    # 0 means all, as the help says (here: the one CPU device)
+    assert main(["train", str(data), "--model", "lagrangian", "--out", str(tmp_path / "r4"),
+                 "--devices", "0", "--epochs", "1", "--quiet", "--mass", "4", "1",
+                 "--potential", "4", "1"]) == 0
+    with pytest.raises(SystemExit):
+        main(["train", str(data), "--model", "lagrangian", "--out", str(tmp_path / "r5"),
+              "--devices", "-1"])
+    assert "expected a count >= 1, or 'all' (or 0), got -1" in capsys.readouterr().err
     with pytest.raises(UserError, match="devices: expected an integer >= 0"):
         TrainConfig(model=model, devices=-1)
     with pytest.raises(UserError, match="devices: 4 devices need a minibatch of at least 4"):

@@ -26,7 +26,7 @@ def _model_defaults() -> dict:
 
 
 def _devices(text: str) -> int:
-    """--devices N or all (0)."""
+    """--devices N, or all (0, as the setting's help says)."""
     import argparse
 
     if text == "all":
@@ -35,8 +35,8 @@ def _devices(text: str) -> int:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a count or 'all', got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a count >= 1 or 'all', got {value}")
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a count >= 1, or 'all' (or 0), got {value}")
     return value
 
 
