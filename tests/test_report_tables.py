@@ -319,3 +319,18 @@ def test_percent_text_reads_at_a_glance():
     assert percent_text(1.7e-16) == "0 %"
     assert percent_text(2e-7) == "2.0e-05 %"
     assert percent_text(None) == percent_text(float("nan")) == "–"
+
+
+def test_the_no_forces_baseline_is_explained_for_momenta():
+    """On (q, p) the no-forces baseline is handed q̇ = M⁻¹ p: the report says so beside a
+    Hamiltonian network's floor, and not for models on velocities alone."""
+    from softpinn.bridge.report.task import _floor_lines
+
+    def entry(state):
+        return {"floor": {"mean": 1e-9, "state": state, "no_forces": 5e-7},
+                "predict": {"test_error": {"mean": 1e-6}}}
+
+    text = " ".join(_floor_lines({"hamiltonian": entry("momentum"),
+                                  "blackbox": entry("velocity")}))
+    assert "handed the recorded velocity q̇ = M⁻¹ p" in text
+    assert "handed" not in " ".join(_floor_lines({"lagrangian": entry("velocity")}))

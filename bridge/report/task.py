@@ -236,12 +236,19 @@ def _floor_lines(models: dict) -> list[str]:
         cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)}{extra})")
     if not cells:
         return []
+    momentum = any((e.get("floor") or {}).get("state") == "momentum"
+                   and (e.get("floor") or {}).get("no_forces") is not None
+                   for e in models.values())
+    caveat = (" For the Hamiltonian network on (q, p) this baseline is not a model that learned "
+              "nothing: it is handed the recorded velocity q̇ = M⁻¹ p, which the network has to "
+              "learn from p through its M⁻¹; its test loss may be above the baseline's with "
+              "every force learned well, and its rollouts tell more." if momentum else "")
     return [
         "Floor of the one-step loss: the true model stepped exactly as the networks are, on "
         "the same test pairs. A test loss near it is limited by the integration, not the "
         "network. Beside it, the loss of a model that learned no forces (q moves on with the "
         "recorded velocity, the velocity or momentum stays): a test loss near that one has "
-        "learned little of the accelerations. " + "; ".join(cells) + ".",
+        "learned little of the accelerations." + caveat + " " + "; ".join(cells) + ".",
         "",
     ]
 
