@@ -276,3 +276,16 @@ def test_an_interrupted_run_says_how_to_go_on(data, tmp_path, capsys):
     assert main(["predict", str(out), str(data), "--horizon", "1"]) == 0
     err = capsys.readouterr().err
     assert f"the training of {out} was interrupted at epoch 2: its model is the best so far" in err
+
+
+def test_predict_names_the_member_of_an_ensemble(data, tmp_path, capsys):
+    """An ensemble run: predict says which seed it used and how it was chosen."""
+    out = tmp_path / "ens"
+    flags = [f for f in TRAIN if f != "--quiet"] + ["--quiet", "--seeds", "2", "--epochs", "2"]
+    assert main(["train", str(data), "--out", str(out), *flags]) == 0
+    capsys.readouterr()
+    assert main(["predict", str(out), str(data), "--horizon", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"{out} is an ensemble of 2 seeds; this is seed" in err and "the best test loss" in err
+    assert main(["predict", str(out), str(data), "--horizon", "1", "--member", "1"]) == 0
+    assert "this is seed 1 (given by --member)" in capsys.readouterr().err

@@ -46,6 +46,9 @@ def register(subparsers) -> None:
                    "a file of an earlier analysis that was edited since (nothing is removed)")
     p.add_argument("--model-mismatch-ok", action="store_true",
                    help="compare with MODEL although the run was trained on another model's data")
+    p.add_argument("--member", type=int, default=None, metavar="SEED",
+                   help="the ensemble member to analyze (default: the one with the best test "
+                   "loss)")
     p.add_argument("--json", action="store_true", help="print every number as one JSON object")
     p.set_defaults(func=cmd_analyze)
 
@@ -101,7 +104,7 @@ def cmd_analyze(args) -> int:
 
     _check_order(args.run, args.model)
     spec = load_spec(args.model)
-    run = load_run(args.run)
+    run = load_run(args.run, member=args.member)
     cfg = run.model_config
     if (cfg.n, cfg.m) != (spec.n, spec.m):
         raise UserError(
@@ -135,7 +138,7 @@ def cmd_analyze(args) -> int:
     samples = _force_samples(run, args.data, args.samples, transforms)
     out = outputs.claim(args.out, "analyze", force=args.force)
     result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
-    notes = _recorded_notes(run, spec)
+    notes = _recorded_notes(run, spec) + _member_notes(args.run, run, args.member)
     for note in notes:
         print(f"softpinn: note: {note}", file=sys.stderr)
     paths = write_report(result, out, max_table_q=max(k, 3), notes=notes)
@@ -147,6 +150,24 @@ def cmd_analyze(args) -> int:
             print(line)
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
+
+
+def _member_notes(run_dir, run, member) -> list[str]:
+    """Which member of an ensemble run the command used, and how it was chosen."""
+    from pathlib import Path
+
+    from softpinn.learn.checkpoint import read_json
+
+    try:
+        info = read_json(Path(run_dir) / "config.json")
+    except Exception:  # noqa: BLE001 - a member folder or no config: one model
+        return []
+    seeds = info.get("seeds") if isinstance(info, dict) and "members" in info else None
+    if not seeds:
+        return []
+    how = "given by --member" if member is not None else "the best test loss; --member SEED " \
+          "chooses another"
+    return [f"{run_dir} is an ensemble of {len(seeds)} seeds; this is seed {run.seed} ({how})"]
 
 
 def _recorded_notes(run, spec) -> list[str]:
@@ -251,6 +272,8 @@ def _headline(result) -> list[str]:
         res = ", ".join(f"{k} {percent_text(v)}" for k, v in r.residual.items()
                         if v is not None and v == v)
         alpha = f", alpha = {r.alpha:.4g}" if name == "alpha" and r.alpha is not None else ""
+        if alpha and r.alpha < 0:
+            alpha += " (negative: no scaled copy of the true matrices)"
         fit = "" if r.status == Status.SUCCESS else f" (fit: {r.status})"
         lines.append(f"{name}: {match_word(r.residual_total)}{fit}{alpha}; error after the "
                      f"transform, relative to the true matrix: {res}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+from types import SimpleNamespace
 
 from .bars import LbfgsBar as LbfgsBar  # re-exported: cli.bridge draws it
 from .bars import TrainBar
@@ -542,6 +543,10 @@ def cmd_predict(args) -> int:
     )
     out = res.to_json()
     _note_interrupted(out["run"])
+    from .bridge import _member_notes
+
+    for note in _member_notes(args.run, SimpleNamespace(seed=out["seed"]), args.member):
+        print(f"softpinn: note: {note}", file=sys.stderr)
     if args.json:
         print(json.dumps(out, allow_nan=False))
         return 0
