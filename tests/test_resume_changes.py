@@ -51,6 +51,11 @@ def test_cli_resume_epochs_50_after_5(data, tmp_path, capsys):
     assert main(["train", str(data), "--out", str(out), "--resume", "--quiet"]) == 0
     assert ckpt.read_json(out / "config.json")["train"]["epochs"] == 50
     capsys.readouterr()
+    # another --model: said so, not as a list of network sizes nobody typed
+    assert main(["train", str(data), "--out", str(out), "--model", "lagrangian", "--resume",
+                 "--quiet"]) == 2
+    assert "the run holds a blackbox model; --model lagrangian cannot continue it" in (
+        capsys.readouterr().err)
     # the run's own --model typed again (the help says it is required) changes nothing
     assert main(["train", str(data), "--out", str(out), "--model", "blackbox", "--resume",
                  "--quiet"]) == 0

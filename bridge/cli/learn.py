@@ -482,9 +482,14 @@ def _resumed_with_flags(args, stored, data):
     keeps those that may change on resume and refuses the others, naming them)."""
     import dataclasses
 
+    from softpinn.learn.errors import UserError
+
     given = set(args.given) - _RUN_FLAGS
     if args.model == stored.model.kind:  # the run's own kind typed again: no change
         given.discard("model")
+    elif "model" in given:
+        raise UserError(f"--resume: the run holds a {stored.model.kind} model; --model "
+                        f"{args.model} cannot continue it (train a new run into another --out)")
     fields = {f.name for f in dataclasses.fields(stored)}
     changes = {name: getattr(args, name) for name in given & fields}
     if given & {"test_trajectories", "test_count"}:
