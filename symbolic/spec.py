@@ -207,7 +207,18 @@ def load_spec(model: str | Path | ModelSpec) -> ModelSpec:
         raise SpecError(f"{text}: is a folder, not a spec file")
     if not path.is_file():
         raise SpecError(f"{text}: no such spec file")
+    if path.suffix == ".npz" or _starts_with(path, b"PK\x03\x04"):
+        raise SpecError(f"{text}: is a data set, not a model; MODEL is a preset name or a .toml "
+                        "spec file")
     return spec_from_toml(_read_text(path), source=str(path))
+
+
+def _starts_with(path: Path, magic: bytes) -> bool:
+    try:
+        with path.open("rb") as f:
+            return f.read(len(magic)) == magic
+    except OSError:
+        return False
 
 
 #: a spec file larger than this is refused before it is read (specs are a few kB)

@@ -233,6 +233,11 @@ def test_train_flags_come_from_the_config_fields():
     assert config.group("optimizer")["lr"] == 3e-3 and "lr" not in config.group("loss")
 
 
+def test_predict_with_its_arguments_swapped_says_the_order(run, data, capsys):
+    assert main(["predict", str(data), str(run), "--horizon", "1"]) == 2
+    assert "the order is `softpinn predict RUN DATA.npz`" in _error_line(capsys)
+
+
 def test_predict_says_which_rollouts_ran_away():
     """A rollout that turns non-finite is named with the time it did, beside the others' mean
     and std (the mean over all is inf, as the paper's tables have it)."""

@@ -125,6 +125,12 @@ def test_unknown_preset_and_missing_file(tmp_path):
         load_spec("task9")
     with pytest.raises(SpecError, match="no such spec file"):
         load_spec(tmp_path / "absent.toml")
+    # a data set given as the model
+    import numpy as np
+
+    np.savez(tmp_path / "d.npz", t=np.zeros(2))
+    with pytest.raises(UserError, match=r"d.npz: is a data set, not a model; MODEL is a preset"):
+        load_spec(tmp_path / "d.npz")
     # a spec file named without its .toml: the message points at it
     (tmp_path / "arm2.toml").write_text("name = 'arm2'")
     with pytest.raises(UserError, match=r"no such file; did you mean .*arm2\.toml\?"):

@@ -521,7 +521,14 @@ def _nulls(obj):
 
 def cmd_predict(args) -> int:
     _enable_x64()
+    from pathlib import Path
+
+    from softpinn.learn.errors import UserError
     from softpinn.learn.predict import predict
+
+    if Path(args.run).is_file() and Path(args.data).is_dir():
+        raise UserError(f"RUN {args.run} is a file and DATA {args.data} a folder; the order is "
+                        "`softpinn predict RUN DATA.npz`")
 
     traj = args.trajectories
     if len(traj) == 1 and traj[0] in ("auto", "test", "all"):
