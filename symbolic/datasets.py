@@ -214,7 +214,12 @@ def plan_dataset(
 
         table, defaults = physics_data_table(spec)
         spec = dataclasses.replace(spec, data=table)
-        LOG.warning(defaults)
+        given = {"trajectories": trajectories, "duration [s]": duration, "rate [Hz]": rate,
+                 "settle [s]": settle, "signal": signal, "seed": seed, "noise": noise,
+                 "integrator": integrator, "dt [s]": dt}
+        told = [f"{k} {v:g}" if isinstance(v, float) else f"{k} {v}"
+                for k, v in given.items() if v is not None]
+        LOG.warning(defaults + (f"; instead, as given: {', '.join(told)}" if told else ""))
     cfg = data_config(spec, data)
     integ = integrator or cfg.integrator
     if integ not in INTEGRATORS:

@@ -16,6 +16,15 @@ from softpinn.symbolic.outputs import count_of
 from .checks import check_writable, positive, warnings_as_lines
 
 
+def _test_words(data) -> str:
+    """'; trajectories 8, 9 for test' (the split train holds out by default), or ''."""
+    test = (data.meta.get("splits") or {}).get("test") or []
+    if not test:
+        return ""
+    ids = ", ".join(map(str, test))
+    return f"; trajector{'y' if len(test) == 1 else 'ies'} {ids} for test"
+
+
 def cmd_simulate(args) -> int:
     from softpinn.symbolic.datafile import write_datasets
     from softpinn.symbolic.datasets import (
@@ -135,7 +144,7 @@ def cmd_simulate(args) -> int:
         f"{spec.name}: wrote {out} ({count_of(k, 'trajectory', 'trajectories')} x "
         f"{count_of(per, 'sample')} at "
         f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}"
-        f"{_batch_word(data) if use_jax else ''}) in {seconds:.2f} s"
+        f"{_batch_word(data) if use_jax else ''}{_test_words(data)}) in {seconds:.2f} s"
     )
     if args.equilibria:
         info = data.meta["equilibria"]
