@@ -78,8 +78,11 @@ def plot_loss_curves(
     labels: Sequence[str] | None = None,
     title: str = "training",
     record: bool = False,
+    colors: Sequence[str] | None = None,
 ) -> Path:
-    """Train (solid) and test (dashed) loss against epoch, log scale, one colour per run."""
+    """Train (solid) and test (dashed) loss against epoch, log scale, one colour per run
+    (``colors``: one per run, e.g. the colours the run's model has in a report's other
+    figures)."""
     fig, axes = _figure()
     ax = axes[0, 0]
     for i, hist in enumerate(histories):
@@ -89,7 +92,8 @@ def plot_loss_curves(
         tr = _finite([r["train_loss"] for r in hist])
         te = _finite([r["test_loss"] for r in hist])
         lab = labels[i] if labels else None
-        (line,) = ax.plot(e, tr, lw=1.2, label=f"train {lab}" if lab else "train")
+        color = colors[i] if colors else None
+        (line,) = ax.plot(e, tr, lw=1.2, color=color, label=f"train {lab}" if lab else "train")
         ax.plot(e, te, "--", lw=1.2, color=line.get_color(), label=f"test {lab}" if lab else "test")
     ax.set_yscale("log")
     ax.set_xlabel("epoch")

@@ -15,8 +15,8 @@ from softpinn.symbolic.shape import PCC_KINDS
 from ..errors import UserError
 from .figsave import save_for_print
 from .paper import load_paper_tables
+from .rollouts import COLORS, finite_points, horizon_figure, rollout_figure
 from .rollouts import NETWORK as _NETWORK
-from .rollouts import finite_points, horizon_figure, rollout_figure
 from .shape import shape_animation, shape_figure
 from .tables import format_mean_std
 
@@ -45,6 +45,7 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
     hist = {k: _load_history(Path(e["train"]["run"])) for k, e in models.items()}
     loss_path = plot_loss_curves(list(hist.values()), fig_dir / f"loss_{vname}.png",
                                  labels=[_NETWORK[k] for k in hist],
+                                 colors=[COLORS.get(k, "C2") for k in hist],
                                  title=f"{plan.task} {vname}: loss (train solid, test dashed)")
     lines += [f"![loss curves]({_rel(loss_path, out)})", ""]
     rolls = {}
