@@ -92,3 +92,11 @@ def test_cli_doc_shows_every_command():
     text = (ROOT / "docs" / "cli.md").read_text()
     missing = [c for c in sub.choices if f"## softpinn {c}\n" not in text]
     assert missing == [], f"docs/cli.md lacks commands {missing}"
+
+
+def test_rundir_doc_lists_every_setting_that_may_change_on_resume():
+    from softpinn.learn.config import RESUMABLE
+
+    text = (ROOT / "docs" / "rundir.md").read_text()
+    missing = [f for f in RESUMABLE if f"`--{f.replace('_', '-')}`" not in text]
+    assert not missing, f"docs/rundir.md does not list {missing} among the resumable settings"
