@@ -33,7 +33,7 @@ def _check_layers(name, value):
     except (TypeError, ValueError):
         ok = False
     if not ok:
-        raise UserError(f"{name} must be (width >= 1, depth >= 0), got {value!r}")
+        raise UserError(f"{name}: must be (width >= 1, depth >= 0), got {value!r}")
     return (width, depth)
 
 
@@ -89,15 +89,15 @@ class ModelConfig:
             set_(name, _check_layers(name, getattr(self, name)))
         if self.activation not in ACTIVATIONS:
             raise UserError(
-                f"activation must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
+                f"activation: must be one of {sorted(ACTIVATIONS)}, got {self.activation!r}"
             )
         if self.damping_form not in _DAMPING_FORMS:
             raise UserError(
-                f"damping_form must be one of {list(_DAMPING_FORMS)}, got {self.damping_form!r}"
+                f"damping_form: must be one of {list(_DAMPING_FORMS)}, got {self.damping_form!r}"
             )
         if self.input_form not in _INPUT_FORMS:
             raise UserError(
-                f"input_form must be one of {list(_INPUT_FORMS)}, got {self.input_form!r}"
+                f"input_form: must be one of {list(_INPUT_FORMS)}, got {self.input_form!r}"
             )
         if self.input_form == "known":
             if self.kind == "blackbox":
@@ -115,19 +115,19 @@ class ModelConfig:
                             "use input_form 'known'")
         if isinstance(self.eps, bool) or not (
                 isinstance(self.eps, int | float) and math.isfinite(self.eps) and self.eps >= 0):
-            raise UserError(f"eps must be a finite number >= 0, got {self.eps!r}")
+            raise UserError(f"eps: must be a finite number >= 0, got {self.eps!r}")
         set_("eps", float(self.eps))
         if self.mass_init is not None:
             ok = isinstance(self.mass_init, int | float) and not isinstance(self.mass_init, bool)
             if not (ok and math.isfinite(self.mass_init) and self.mass_init > 0):
-                raise UserError(f"mass_init must be a number > 0 or None, got {self.mass_init!r}")
+                raise UserError(f"mass_init: must be a number > 0, got {self.mass_init!r}")
             if math.sqrt(self.mass_init) <= self.eps:
                 raise UserError(
-                    f"mass_init must exceed eps² = {self.eps**2:g}, got {self.mass_init!r}"
+                    f"mass_init: must exceed eps² = {self.eps**2:g}, got {self.mass_init!r}"
                 )
             set_("mass_init", float(self.mass_init))
         if self.dtype not in _DTYPES:
-            raise UserError(f"dtype must be one of {list(_DTYPES)}, got {self.dtype!r}")
+            raise UserError(f"dtype: must be one of {list(_DTYPES)}, got {self.dtype!r}")
         natural = _NATURAL_STATE.get(self.kind)
         if self.state_kind is None:
             set_("state_kind", natural or "velocity")

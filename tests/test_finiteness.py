@@ -36,9 +36,9 @@ def test_every_float_setting_refuses_nan_and_inf(field, value):
 
 @pytest.mark.parametrize("value", [NAN, INF])
 def test_model_settings_refuse_nan_and_inf(value):
-    with pytest.raises(UserError, match="eps must be a finite number >= 0"):
+    with pytest.raises(UserError, match="eps: must be a finite number >= 0"):
         ModelConfig(kind="lagrangian", n=2, m=1, eps=value)
-    with pytest.raises(UserError, match="mass_init must be a number > 0"):
+    with pytest.raises(UserError, match="mass_init: must be a number > 0"):
         ModelConfig(kind="lagrangian", n=2, m=1, mass_init=value)
 
 

@@ -185,7 +185,7 @@ def test_known_a_hamiltonian_eq10_on_momenta_recovers_msd(tmp_path, capsys):
     # the file holds no ṗ: the recorded labels are refused with the way out
     assert main(base + ["--out", str(tmp_path / "no"), "--epochs", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "accel_labels 'differences'" in err[0], err
+    assert len(err) == 1 and "--accel-labels 'differences'" in err[0], err
     assert not (tmp_path / "no").exists()
     assert main(base + ["--accel-labels", "differences", "--out", str(tmp_path / "run"),
                         "--mass", "16", "1", "--potential", "16", "1", "--damping-form",

@@ -75,6 +75,8 @@ def _as_flag(message: str, parser: argparse.ArgumentParser, args) -> str:
     """Library errors name settings by their field (``lr: expected ...``); on the command line
     the user typed a flag, so a message that starts with a field of the running command's
     options names that flag instead (``--lr: expected ...``)."""
+    import re
+
     field, sep, rest = message.partition(": ")
     if not sep or not field.isidentifier():
         return message
@@ -82,10 +84,12 @@ def _as_flag(message: str, parser: argparse.ArgumentParser, args) -> str:
     command = sub.choices.get(getattr(args, "command", None))
     if command is None:
         return message
-    for action in command._actions:
-        if action.dest == field and action.option_strings:
-            return f"{action.option_strings[0]}: {rest}"
-    return message
+    flags = {a.dest: a.option_strings[0] for a in command._actions if a.option_strings}
+    if field not in flags:
+        return message
+    # other fields the message names, where they are unmistakable (snake_case words)
+    rest = re.sub(r"\b[a-z]+(?:_[a-z]+)+\b", lambda m: flags.get(m.group(0), m.group(0)), rest)
+    return f"{flags[field]}: {rest}"
 
 
 def _resume_hint(args) -> str:
