@@ -421,6 +421,9 @@ def test_analyze_cli_and_its_errors(quick_runs, tmp_path, capsys):
     assert main(["analyze", str(run), "task1", "--samples", "-1", "--out",
                  str(tmp_path / "g")]) == 2
     assert "--samples" in _err(capsys)
+    assert main(["analyze", str(run), "task1", "--points", "0", "--out",
+                 str(tmp_path / "g")]) == 2
+    assert "--points: expected a count >= 1, got 0" in _err(capsys)
     assert main(["analyze", str(run), "task1", "--data", str(tmp_path / "none.npz"), "--out",
                  str(tmp_path / "h")]) == 2
     assert "none.npz" in _err(capsys)

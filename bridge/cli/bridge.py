@@ -103,6 +103,8 @@ def cmd_analyze(args) -> int:
     from ..analysis.transforms import TRANSFORMS
 
     _check_order(args.run, args.model)
+    if args.points < 1 and args.q is None:
+        raise UserError(f"--points: expected a count >= 1, got {args.points}")
     spec = load_spec(args.model)
     run = load_run(args.run, member=args.member)
     cfg = run.model_config
