@@ -233,6 +233,17 @@ def test_train_flags_come_from_the_config_fields():
     assert config.group("optimizer")["lr"] == 3e-3 and "lr" not in config.group("loss")
 
 
+def test_network_sizes_of_another_kind_are_refused(data, tmp_path, capsys):
+    assert main(["train", str(data), "--model", "blackbox", "--mass", "8", "1", "--out",
+                 str(tmp_path / "a")]) == 2
+    assert "--mass sizes a physics model's network; a black box's is --hidden" in (
+        _error_line(capsys))
+    assert main(["train", str(data), "--model", "hamiltonian", "--hidden", "8", "1", "--out",
+                 str(tmp_path / "b")]) == 2
+    assert "--hidden sizes the black box's network" in _error_line(capsys)
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
 def test_predict_with_its_arguments_swapped_says_the_order(run, data, capsys):
     assert main(["predict", str(data), str(run), "--horizon", "1"]) == 2
     assert "the order is `softpinn predict RUN DATA.npz`" in _error_line(capsys)

@@ -246,6 +246,13 @@ def _model_config(args, n: int, m: int, data=None, train_ids=None):
 
     if args.model is None:
         raise UserError(f"--model is required: one of {', '.join(MODEL_KINDS)}")
+    physics_nets = [net for net in NETS if net != "hidden" and getattr(args, net) is not None]
+    if args.model == "blackbox" and physics_nets:
+        raise UserError(f"--{physics_nets[0]} sizes a physics model's network; a black box's "
+                        "is --hidden W D")
+    if args.model != "blackbox" and getattr(args, "hidden", None) is not None:
+        raise UserError(f"--hidden sizes the black box's network; a {args.model} network has "
+                        "--mass, --potential, --damping and --input")
     kw = {}
     defaults = ModelConfig(kind=args.model, n=n, m=m)
     for net in NETS:
