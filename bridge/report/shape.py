@@ -43,28 +43,40 @@ def gravity_up_axis(spec) -> bool:
     return len(g) in (2, 3) and g[-1] > 0
 
 
-def _limits(ax, points: np.ndarray, spec=None) -> None:
-    """Equal scales on every axis around all points (T, dim, K); the vertical axis turned over
-    where the spec's gravity points along it (:func:`gravity_up_axis`), and a note of where
-    gravity points."""
+def gravity_words(spec) -> str:
+    """' (gravity down the page: +z)' for a title, or '' where the spec has no vertical
+    gravity."""
+    g = tuple(getattr(spec, "gravity", ()) or ())
+    if len(g) not in (2, 3) or g[-1] == 0:
+        return ""
+    return f" (gravity down the page: {'+' if g[-1] > 0 else '−'}{'yz'[len(g) - 2]})"
+
+
+def _limits(ax, points: np.ndarray, spec=None, margin: float = 1.1) -> tuple:
+    """Equal scales on every axis around all points (T, dim, K), ``margin`` times their half
+    extent; the vertical axis turned over where the spec's gravity points along it
+    (:func:`gravity_up_axis`). Returns the box (lo, hi) per axis."""
     flat = points.transpose(1, 0, 2).reshape(points.shape[1], -1)
-    lo, hi = flat.min(axis=1), flat.max(axis=1)
-    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-3) * 1.1
+    lo, hi = np.nanmin(flat, axis=1), np.nanmax(flat, axis=1)
+    mid, half = (lo + hi) / 2, max(float(np.max(hi - lo)) / 2, 1e-3) * margin
     flip = spec is not None and gravity_up_axis(spec)
     if points.shape[1] == 3:
         ax.set_xlim(mid[0] - half, mid[0] + half)
         ax.set_ylim(mid[1] - half, mid[1] + half)
         ax.set_zlim(*((mid[2] + half, mid[2] - half) if flip else (mid[2] - half, mid[2] + half)))
-        ax.set_box_aspect((1, 1, 1), zoom=0.85)
+        ax.set_box_aspect((1, 1, 1), zoom=0.8)
     else:
         ax.set_xlim(mid[0] - half, mid[0] + half)
         ax.set_ylim(*((mid[1] + half, mid[1] - half) if flip else (mid[1] - half, mid[1] + half)))
-    g = tuple(getattr(spec, "gravity", ()) or ()) if spec is not None else ()
-    if len(g) in (2, 3) and g[-1] != 0:  # which way is down
-        text = f"gravity ↓ ({'+' if g[-1] > 0 else '−'}{'yz'[len(g) - 2]})"
-        put = ax.text if len(g) == 2 else ax.text2D
-        put(0.98, 0.02, text, ha="right", va="bottom", fontsize=7, color="0.35",
-            transform=ax.transAxes)
+    return mid - half, mid + half
+
+
+def _inside(pts: np.ndarray, box) -> np.ndarray:
+    """The backbone (dim, K) with the points outside the box NaN (3-D lines are not clipped)."""
+    lo, hi = box
+    out = np.array(pts, float)
+    out[:, np.any((out < lo[:, None]) | (out > hi[:, None]), axis=0)] = np.nan
+    return out
 
 
 def _draw(ax, pts: np.ndarray, *, color, style="-", lw=2.0, label=None, alpha=1.0):
@@ -92,7 +104,8 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
         _draw(ax, p, color=f"C{i % 10}", label=label)
     _limits(ax, pts, spec)
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title(title or f"{spec.name}: backbone (base ■, tip ●)", fontsize=10)
+    ax.set_title((title or f"{spec.name}: backbone (base ■, tip ●)") + gravity_words(spec),
+                 fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=dpi)
     plt.close(fig)
@@ -124,21 +137,31 @@ def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[s
             pts[partial[k]] = backbone_points(spec, np.asarray(qp, float)[idx[partial[k]]])
             pred_pts[k] = pts
     dim = true_pts.shape[1]
-    fig = plt.figure(figsize=(3.3 * len(idx), 3.8), layout="constrained")
-    every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))]
-                                         for p in pred_pts.values()])
+    fig = plt.figure(figsize=(3.6 * len(idx), 3.9), layout="constrained")
     for j, i in enumerate(idx):
         ax = _axes(fig, dim, (1, len(idx), j + 1))
-        _draw(ax, true_pts[j], color="k", label="truth")
+        # the view is the truth's (a prediction far off is cut at its edge, and says so), so
+        # that one running away does not shrink the arm to a dot
+        box = _limits(ax, true_pts, spec, margin=1.6)
+        left = []
         for k, pts in pred_pts.items():
             if not np.isnan(pts[j]).any():
-                _draw(ax, pts[j], color=COLORS.get(k, "C2"), style="--", lw=1.6,
+                shown = _inside(pts[j], box) if dim == 3 else pts[j]
+                if np.isnan(shown).any() or np.any((pts[j] < box[0][:, None])
+                                                   | (pts[j] > box[1][:, None])):
+                    left.append(NETWORK.get(k, k))
+                _draw(ax, shown, color=COLORS.get(k, "C2"), style="--", lw=1.6,
                       label=NETWORK.get(k, k))
-        _limits(ax, every, spec)
+        _draw(ax, true_pts[j], color="k", label="truth", lw=1.6)  # on top: visible at t = 0
         ax.set_title(f"t = {t[i] - t[0]:.3g} s", fontsize=9)
+        if left:
+            where = ax.text2D if dim == 3 else ax.text
+            where(0.5, -0.02 if dim == 3 else 0.02, f"{', '.join(left)}: leaves the view",
+                  transform=ax.transAxes, ha="center", va="top" if dim == 3 else "bottom",
+                  fontsize=7, color="0.3")
         if j == 0:
             ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(title, fontsize=10)
+    fig.suptitle(title + gravity_words(spec), fontsize=10)
     path = Path(path)
     save_for_print(fig, path, dpi=dpi)
     plt.close(fig)
@@ -175,6 +198,7 @@ def shape_animation(spec, t: np.ndarray, q_true: np.ndarray,
     ax = _axes(fig, dim)
     every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))] for p in preds.values()])
     _limits(ax, every, spec)
+    title = title + gravity_words(spec)
     line_true, = ax.plot(*true_pts[0], "k-", lw=2.2, label="truth")
     lines = {k: ax.plot(*p[0], "--", lw=1.8, color=COLORS.get(k, "C2"),
                         label=NETWORK.get(k, k))[0] for k, p in preds.items()}
