@@ -259,6 +259,7 @@ def analyze(
         "transforms": list(transforms),
         "options": options,
         "coordinates": None if names is None else list(names),
+        "model_kind": getattr(spec, "kind", None),
     }
     return AnalysisResult(q, true, learned, kind, results, meta, forces, accelerations, sweeps,
                           excitation)

@@ -89,8 +89,16 @@ def write_report(
             paths[p.name] = p
         p = out / "P_entries.png"
         spread = np.ptp(np.asarray(result.q, float), axis=0)
-        plot_transform_entries(result.q, result.results, path=p,
-                               coordinate=int(np.argmax(spread)) if len(result.q) > 1 else None)
+        widest = int(np.argmax(spread)) if len(result.q) > 1 else None
+        names = result.meta.get("coordinates")
+        label = None
+        if widest is not None and names:
+            from softpinn.learn.plots import coordinate_unit
+
+            unit = coordinate_unit(names[widest], result.meta.get("model_kind"))
+            label = f"{names[widest]} [{unit}]" if unit else names[widest]
+        plot_transform_entries(result.q, result.results, path=p, coordinate=widest,
+                               coordinate_label=label)
         paths[p.name] = p
         for name, comp in (("forces.png", result.forces),
                            ("accelerations.png", result.accelerations)):

@@ -95,10 +95,12 @@ def plot_transform_entries(
     coordinate: int | None = None,
     path: str | Path | None = None,
     title: str = "",
+    coordinate_label: str | None = None,
 ) -> Figure:
     """Entries P_ij over the sampled q, one panel per entry and one series per transform.
 
-    The x axis is the sample index, or ``q[:, coordinate]`` (points sorted by it). For a
+    The x axis is the sample index, or ``q[:, coordinate]`` (points sorted by it; labelled
+    ``coordinate_label``, e.g. 'dx1 [m]', else q1, q2, ... as the entries P[1,1] count). For a
     ``smooth`` result the held-out q are drawn as open markers.
     """
     q = np.asarray(q, dtype=np.float64)
@@ -116,7 +118,7 @@ def plot_transform_entries(
         x, order, xlabel = np.arange(N), np.arange(N), "sample"
     else:
         order = np.argsort(q[:, coordinate], kind="stable")
-        x, xlabel = q[order, coordinate], f"q[{coordinate}]"
+        x, xlabel = q[order, coordinate], coordinate_label or f"q{coordinate + 1}"
     fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.7), layout="constrained")
     axes = fig.subplots(n, n, squeeze=False, sharex=True)
     for name, r in results.items():
@@ -134,6 +136,7 @@ def plot_transform_entries(
         for j in range(n):
             axes[i, j].set_title(f"P[{i + 1},{j + 1}]", fontsize="small")
         axes[-1, i].set_xlabel(xlabel)
+        axes[i, 0].set_ylabel("entry of P(q)")
     axes[0, 0].legend(fontsize="x-small")
     fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
     return _save(fig, path)
