@@ -105,8 +105,8 @@ def test_rollout_figure_shades_every_test_trajectory_behind_the_one_drawn(tmp_pa
 
     t, q = _truth(n=2)
     pred = q + 1e-3
-    errors = 1e-3 * np.array([[1.0], [2.0], [4.0]]) * np.ones((3, t.size))
-    errors[2, t.size // 2:] = np.inf  # one test trajectory diverged half way: no inf drawn
+    errors = 1e-3 * np.array([[1.0], [2.0], [4.0], [8.0], [16.0]]) * np.ones((5, t.size))
+    errors[4, t.size // 2:] = np.inf  # one test trajectory diverged half way: no inf drawn
     drawn = []
     original = plt.Axes.fill_between
 
@@ -124,7 +124,18 @@ def test_rollout_figure_shades_every_test_trajectory_behind_the_one_drawn(tmp_pa
     assert path.is_file() and path.with_suffix(".pdf").is_file()
     (x, lo, hi), = drawn
     assert np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(lo <= hi)
-    assert lo[0] == pytest.approx(1.2e-3) and hi[0] == pytest.approx(3.6e-3)  # 10-90 % of 1, 2, 4
+    # 10-90 % of 1, 2, 4, 8, 16 (e-3)
+    assert lo[0] == pytest.approx(1.4e-3) and hi[0] == pytest.approx(1.28e-2)
+    # fewer than five trajectories: no band (it would say nothing)
+    drawn.clear()
+    plt.Axes.fill_between = spy
+    try:
+        rollout_figure(t, q, {"lagrangian": pred}, names=["theta1", "dL1"], units=["rad", "m"],
+                       title="few", path=tmp_path / "f.png",
+                       bands={"lagrangian": (t - t[0], errors[:3])})
+    finally:
+        plt.Axes.fill_between = original
+    assert drawn == []
 
 
 def test_a_quick_run_draws_drafts_and_a_full_run_print_copies(tmp_path):

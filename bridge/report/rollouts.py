@@ -20,6 +20,9 @@ COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
 STYLES = {"lagrangian": "--", "hamiltonian": "-.", "blackbox": ":"}
 #: How far outside the truth's range (in multiples of it) a prediction counts as diverged.
 DIVERGED_FACTOR = 1e3
+#: The fewest trajectories whose errors are summarised by a median and a 10-90 % band; fewer
+#: are drawn one by one (a band of two trajectories says nothing a reader can use).
+MIN_BAND = 5
 
 
 def finite_percentile(a: np.ndarray, p: float) -> np.ndarray:
@@ -114,9 +117,11 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
                frameon=False)
     fig.suptitle(title, fontsize=10, x=0.02, ha="left")
     notes = []
-    for k, (bt, berr) in (bands or {}).items():
+    bands = {k: b for k, b in (bands or {}).items()
+             if np.asarray(b[1]).ndim == 2 and np.asarray(b[1]).shape[0] >= MIN_BAND}
+    for k, (bt, berr) in bands.items():
         bt, berr = np.asarray(bt, float), np.asarray(berr, float)
-        if berr.ndim != 2 or berr.shape[0] < 2 or bt.size < 2:
+        if bt.size < 2:
             continue
         keep = (bt > bt[0]) & (bt - bt[0] <= t[-1] - t[0] + 1e-12)
         lo, hi = (finite_percentile(berr, p) for p in (10, 90))
@@ -142,7 +147,8 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
         err_ax.text(0.01, 0.95, "; ".join(notes), transform=err_ax.transAxes, va="top",
                     fontsize=8, color="C3", bbox={"facecolor": "white", "alpha": 0.8,
                                                   "edgecolor": "none"})
-    err_ax.set_ylabel("max over q of |q − q̂|")
+    same = units[0] if units and all(u == units[0] for u in units) and units[0] else ""
+    err_ax.set_ylabel("max over q of |q − q̂|" + (f" [{same}]" if same else ""))
     err_ax.set_xlabel("t [s]")
     err_ax.set_xlim(t[0], t[-1])
     err_ax.grid(alpha=0.3, which="both")
@@ -153,7 +159,7 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
 
 
 def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title: str,
-                   path: str | Path, dpi: int | None = None) -> Path:
+                   path: str | Path, dpi: int | None = None, unit: str = "") -> Path:
     """How far ahead a model can be trusted: for each model the error max over q of
     |q - q_hat| against the time since the start, over every test trajectory (``curves[kind] =
     (t (T,), errors (K, T))``): the median as a line, the 10-90 % band shaded, log scale. A
@@ -177,20 +183,25 @@ def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title
         t = np.asarray(t, float)[1:]
         if not err.size:
             continue
-        lo, mid, hi = np.percentile(err, [10, 50, 90], axis=0)
         color = COLORS.get(k, "C2")
-        ax.semilogy(t, mid, STYLES.get(k, "-"), color=color, lw=1.5,
-                    label=f"{NETWORK.get(k, k)} (median of {len(err)})")
-        ax.fill_between(t, lo, hi, color=color, alpha=0.18, lw=0)
+        if len(err) >= MIN_BAND:
+            lo, mid, hi = np.percentile(err, [10, 50, 90], axis=0)
+            ax.semilogy(t, mid, STYLES.get(k, "-"), color=color, lw=1.5,
+                        label=f"{NETWORK.get(k, k)} (median of {len(err)}, 10-90 % shaded)")
+            ax.fill_between(t, lo, hi, color=color, alpha=0.18, lw=0)
+        else:  # too few for a band: each trajectory
+            for r, row in enumerate(err):
+                ax.semilogy(t, row, STYLES.get(k, "-"), color=color, lw=1.1,
+                            label=f"{NETWORK.get(k, k)} (each of {len(err)})" if r == 0 else None)
         gone = int(np.sum(np.asarray(curves[k][1], float)[:, -1] >= top))
         if gone:
             notes.append(f"{NETWORK.get(k, k)}: {gone} of {len(err)} diverged (drawn at the top)")
     if notes:
         ax.text(0.01, 0.97, "; ".join(notes), transform=ax.transAxes, va="top", fontsize=8,
                 color="C3", bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-    ax.set_ylim(top=top * 3)
+    ax.set_ylim(top=top * 3 if notes else finite_max * 3)  # room above only for the diverged
     ax.set_xlabel("time since the start of the rollout [s]")
-    ax.set_ylabel("max over q of |q − q̂|")
+    ax.set_ylabel("max over q of |q − q̂|" + (f" [{unit}]" if unit else ""))
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=8, loc="lower right")

@@ -15,7 +15,7 @@ from softpinn.symbolic.shape import PCC_KINDS
 from ..errors import UserError
 from .figsave import save_for_print
 from .paper import load_paper_tables
-from .rollouts import COLORS, finite_points, horizon_figure, rollout_figure
+from .rollouts import COLORS, MIN_BAND, finite_points, horizon_figure, rollout_figure
 from .rollouts import NETWORK as _NETWORK
 from .shape import shape_animation, shape_figure
 from .tables import format_mean_std
@@ -89,9 +89,11 @@ def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
               if "horizon_error" in r}
     if spread:
         count = len(next(iter(spread.values()))[1])
+        how = "median, 10-90 % band" if count >= MIN_BAND else "each drawn"
         path = horizon_figure(spread, path=fig_dir / f"horizon_{vname}.png",
                               title=f"{plan.task} {vname}: error against the horizon, {count} "
-                                    "test trajectories (median, 10-90 % band)")
+                                    f"test trajectories ({how})",
+                              unit=units[0] if len(set(units)) == 1 else "")
         lines += ["How far ahead each model can be trusted: its error against the time since "
                   "the start of the rollout, over every test trajectory.", "",
                   f"![error against horizon]({_rel(path, out)})", ""]
