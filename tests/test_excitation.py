@@ -122,3 +122,13 @@ def test_velocity_report_prints_an_undefined_ratio_as_a_dash():
     share = {"inertia_over_damping": [0.0779, None, 0.5], "eigenvalue": [5.5e-4, 6e-4, 0.1]}
     lines = _excitation_lines({"task5": {"variants": {"100Hz": {"excitation": share}}}})
     assert "| task5 | 100Hz | 0.00055, 0.0006 | 7.79 %, – |" in lines
+
+
+def test_an_undamped_system_gets_one_sentence_not_a_table_of_dashes():
+    from softpinn.bridge.analysis.excitation import markdown_lines
+
+    share = {"vectors": [[1.0, 0.0], [0.0, 1.0]], "eigenvalue": [1.0, 2.0], "corner_hz": [0, 0],
+             "inertial": [0.3, 0.2], "damping": [0.0, 0.0], "rest": [0.1, 0.1],
+             "inertia_over_damping": [None, None]}
+    text = " ".join(markdown_lines(share, heading=None))
+    assert "has no damping" in text and "|" not in text

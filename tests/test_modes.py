@@ -81,3 +81,9 @@ def test_bad_q_and_u_are_one_line_errors(task1):
         modes(task1, _known_model(), [0.0, 0.0, 0.0], None)
     with pytest.raises(UserError, match=r"modes: u needs 0 values, got 1"):
         modes(task1, _known_model(), [0.0, 0.0], [1.0])
+
+
+def test_an_undamped_pair_has_no_rounding_level_real_part():
+    """An undamped pendulum's pair reads ± 5.78i, not 8.57e-17 ± 5.78i."""
+    assert format_modes([[8.57e-17, 5.78], [8.57e-17, -5.78]]) == "± 5.78i"
+    assert format_modes([[-0.01, 5.78], [-0.01, -5.78]]) == "-0.01 ± 5.78i"

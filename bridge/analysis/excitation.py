@@ -110,6 +110,9 @@ def markdown_lines(share: dict, names=None, heading: str | None = "## What the d
                    "the inertia") -> list[str]:
     """The share as a Markdown table, one row per direction (lightest first), and what it says."""
     lines = [heading, ""] if heading else []
+    if not any(d for d in share["damping"] if d is not None and d == d):  # an undamped system
+        return lines + ["The true model has no damping: there is no damping force to weigh the "
+                        "inertia against (this comparison is for damped arms).", ""]
     lines += ["Along each eigenvector v of the true M(q), lightest first: the rms over the data's "
               "samples of the inertial force vᵀ M q̈ (the true q̈) against the damping force "
               "vᵀ D q̇, and the corner frequency vᵀDv / (2π vᵀMv). Where the inertia is a few "

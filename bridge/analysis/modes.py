@@ -105,11 +105,14 @@ def format_modes(pairs) -> str:
         if abs(e.imag) > 1e-9 * max(1.0, abs(e)):
             j = next((k for k in range(i + 1, len(values)) if k not in seen
                       and abs(values[k] - e.conjugate()) <= 1e-6 * max(1.0, abs(e))), None)
+            # a real part at rounding level of the pair (an undamped mode) is shown as 0
+            re = 0.0 if abs(e.real) <= 1e-9 * abs(e) else e.real
             if j is not None:
                 seen.add(j)
-                parts.append(f"{e.real:.3g} ± {abs(e.imag):.3g}i")
+                parts.append(f"± {abs(e.imag):.3g}i" if re == 0 else
+                             f"{re:.3g} ± {abs(e.imag):.3g}i")
                 continue
-            parts.append(f"{e.real:.3g}{e.imag:+.3g}i")
+            parts.append(f"{re:.3g}{e.imag:+.3g}i")
         else:
             parts.append(f"{e.real:.3g}")
     return ", ".join(parts)
