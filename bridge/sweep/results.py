@@ -184,6 +184,7 @@ def plot(path: Path, rows: list[dict], space: dict, metric_label: str) -> Path:
             ax.scatter([xs[i]], [ys[i]], s=160, marker="*", color="C3", zorder=3,
                        label="best")
         ax.set_yscale("log")
+        ax.margins(x=0.12, y=0.15)  # the best trial's star is not cut at the edge
         ax.set_xlabel(dashed(name))
         ax.set_ylabel(metric_label)
         ax.grid(True, which="both", alpha=0.3)
