@@ -387,12 +387,29 @@ def initial_model(run_dir: str, model_config):
     if not Path(run_dir).is_dir():
         raise UserError(f"init: {run_dir} is not a run folder")
     run = load_run(run_dir)
-    if run.model_config != model_config:
-        theirs, ours = run.model_config.to_dict(), model_config.to_dict()
+    theirs, ours = _network_of(run.model_config), _network_of(model_config)
+    if theirs != ours:
         diff = sorted(k for k in ours if theirs.get(k) != ours[k])
         raise UserError(f"init: the run in {run_dir} has another network (differs in "
                         f"{', '.join(diff)})")
-    return run.model
+    if run.model_config == model_config:
+        return run.model
+    # the same network under this run's configuration (a size it does not use differs): its
+    # parameters in the structure of a model built from model_config
+    shape = jax.tree_util.tree_structure(make_model(model_config, key=jax.random.PRNGKey(0)))
+    leaves = jax.tree_util.tree_leaves(run.model)
+    if shape.num_leaves != len(leaves):  # not expected: the networks compared equal
+        raise UserError(f"init: the run in {run_dir} has another network")
+    return jax.tree_util.tree_unflatten(shape, leaves)
+
+
+def _network_of(model_config) -> dict:
+    """The settings that make the network: a physics model's ignore the black box's size
+    (``hidden``) and a black box's the physics networks' sizes."""
+    d = model_config.to_dict()
+    unused = (("mass", "potential", "damping", "input") if d.get("kind") == "blackbox"
+              else ("hidden",))
+    return {k: v for k, v in d.items() if k not in unused}
 
 
 def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,

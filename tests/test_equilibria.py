@@ -201,7 +201,7 @@ def test_cli_trains_with_labels_and_resume_keeps_them(msd_files, tmp_path, capsy
     # another weight is another run: refused on resume
     assert main(["train", str(labelled), "--out", str(out), *TRAIN, "--resume",
                  "--equilibrium-weight", "1"]) == 2
-    assert "equilibrium_weight" in _error_line(capsys)
+    assert "--equilibrium-weight" in _error_line(capsys)
 
 
 def test_simulate_equilibria_flag(tmp_path, capsys):

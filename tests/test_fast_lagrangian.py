@@ -170,7 +170,7 @@ def test_train_init_warm_start(tmp_path, capsys):
     # the pair-loss run with a vanishing learning rate ends where it started
     assert main(["train", str(data), "--model", "lagrangian", "--out", str(tmp_path / "pair"),
                  "--mass", "16", "1", "--potential", "16", "1", "--damping", "8", "1",
-                 "--input", "8", "1", "--hidden", "16", "2", "--init", str(tmp_path / "warm"),
+                 "--input", "8", "1", "--init", str(tmp_path / "warm"),
                  "--epochs", "1", "--batch-size", "32", "--lr", "1e-14",
                  "--test-trajectories", "2", "--quiet"]) == 0, capsys.readouterr().err
     stored = json.loads((tmp_path / "pair" / "config.json").read_text())["train"]

@@ -9,7 +9,7 @@ import time
 
 from .. import outputs
 from ..errors import UserError
-from .learn import _enable_x64
+from .learn import _enable_x64, _member_notes
 
 
 def register(subparsers) -> None:
@@ -152,24 +152,6 @@ def cmd_analyze(args) -> int:
             print(line)
         print(f"wrote {paths['report']}" if "report" in paths else f"wrote {args.out}")
     return 0
-
-
-def _member_notes(run_dir, run, member) -> list[str]:
-    """Which member of an ensemble run the command used, and how it was chosen."""
-    from pathlib import Path
-
-    from softpinn.learn.checkpoint import read_json
-
-    try:
-        info = read_json(Path(run_dir) / "config.json")
-    except Exception:  # noqa: BLE001 - a member folder or no config: one model
-        return []
-    seeds = info.get("seeds") if isinstance(info, dict) and "members" in info else None
-    if not seeds:
-        return []
-    how = "given by --member" if member is not None else "the best test loss; --member SEED " \
-          "chooses another"
-    return [f"{run_dir} is an ensemble of {len(seeds)} seeds; this is seed {run.seed} ({how})"]
 
 
 def _recorded_notes(run, spec) -> list[str]:

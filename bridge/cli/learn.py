@@ -386,6 +386,24 @@ def cmd_train(args) -> int:
     return 0
 
 
+def _member_notes(run_dir, run, member) -> list[str]:
+    """Which member of an ensemble run the command used, and how it was chosen."""
+    from pathlib import Path
+
+    from softpinn.learn.checkpoint import read_json
+
+    try:
+        info = read_json(Path(run_dir) / "config.json")
+    except Exception:  # noqa: BLE001 - a member folder or no config: one model
+        return []
+    seeds = info.get("seeds") if isinstance(info, dict) and "members" in info else None
+    if not seeds:
+        return []
+    how = "given by --member" if member is not None else "the best test loss; --member SEED " \
+          "chooses another"
+    return [f"{run_dir} is an ensemble of {len(seeds)} seeds; this is seed {run.seed} ({how})"]
+
+
 def _note_interrupted(run_dir) -> None:
     """A note on stderr where the run's training was interrupted: its model is the best so far,
     not a finished run's."""
@@ -562,8 +580,6 @@ def cmd_predict(args) -> int:
     )
     out = res.to_json()
     _note_interrupted(out["run"])
-    from .bridge import _member_notes
-
     for note in _member_notes(args.run, SimpleNamespace(seed=out["seed"]), args.member):
         print(f"softpinn: note: {note}", file=sys.stderr)
     if args.json:
