@@ -273,6 +273,11 @@ def test_cli_export_and_bad_inputs(runs, tmp_path, monkeypatch, capsys):
     status, _, _ = _cli(monkeypatch, capsys, run, "--out", tmp_path / "ok", "--mean", "--force")
     assert status == 0
     assert json.loads((tmp_path / "ok" / "model.json").read_text())["ensemble"]["mode"] == "mean"
+    # --mean of a single-model run is that model, and says so
+    one = runs("hamiltonian")
+    status, out, err = _cli(monkeypatch, capsys, one, "--out", tmp_path / "one", "--mean")
+    assert status == 0 and "holds one model: --mean exports that one" in err and ", mean" not in out
+    assert json.loads((tmp_path / "one" / "model.json").read_text())["ensemble"]["mode"] == "member"
 
 
 def test_library_errors_are_user_errors(runs, tmp_path):

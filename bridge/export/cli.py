@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 
 def register(subparsers) -> None:
@@ -41,7 +42,11 @@ def cmd_export(args) -> int:
     else:
         lib = result["c"]["library"] or "no library (no C compiler)"
         seeds = ", ".join(str(s) for s in result["ensemble"]["seeds"])
+        averaged = result["ensemble"]["mode"] == "mean"
+        if args.mean and not averaged:
+            print(f"softpinn: note: {args.run} holds one model: --mean exports that one",
+                  file=sys.stderr)
         print(f"exported {result['kind']} model (n={result['n']}, m={result['m']}, seed(s) "
-              f"{seeds}{', mean' if args.mean else ''}) to {args.out}: "
+              f"{seeds}{', mean' if averaged else ''}) to {args.out}: "
               f"{len(result['functions'])} Functions, model.c/model.h, {lib}")
     return 0

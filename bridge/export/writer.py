@@ -218,7 +218,7 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
         "dtype_trained": loaded[0].model_config.dtype,
         **_names(n, m, first["kind"], first["state_kind"], meta),
         "ensemble": {
-            "mode": "mean" if mean else "member",
+            "mode": "mean" if mean and len(loaded) > 1 else "member",
             "seeds": [r.seed for r in loaded],
             "all_seeds": info.get("seeds", [info.get("seed")]),
         },
