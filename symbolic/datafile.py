@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import zipfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -130,13 +131,21 @@ def read_dataset(path: str | os.PathLike) -> DatasetArrays:
     path = Path(path)
     if not path.is_file():
         raise DataError(f"dataset file {path}: no such file")
-    with np.load(path, allow_pickle=False) as z:
-        missing = [k for k in (*ARRAY_KEYS, "meta") if k not in z.files]
-        if missing:
-            raise DataError(f"dataset file {path}: missing key(s) {', '.join(missing)}")
-        arrays = {k: np.asarray(z[k]) for k in ARRAY_KEYS}
-        arrays.update({k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files})
-        meta = json.loads(str(z["meta"].item()))
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if not hasattr(z, "files"):  # a plain .npy array, not a dataset's .npz
+                raise ValueError("a single array, not an .npz archive")
+            missing = [k for k in (*ARRAY_KEYS, "meta") if k not in z.files]
+            if missing:
+                raise DataError(f"dataset file {path}: missing key(s) {', '.join(missing)}")
+            arrays = {k: np.asarray(z[k]) for k in ARRAY_KEYS}
+            arrays.update({k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files})
+            meta = json.loads(str(z["meta"].item()))
+    except DataError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise DataError(f"dataset file {path}: cannot be read as a data set ({first})") from None
     return DatasetArrays(meta=meta, **arrays)
 
 

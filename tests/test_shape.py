@@ -98,3 +98,13 @@ def test_show_cli_draws_configurations_and_trajectories(tmp_path, capsys):
     assert "not in" in _err(capsys)
     assert main(["show", "task4", "--data", str(data), "--out", str(tmp_path / "y.gif")]) == 2
     assert "n = 2" in _err(capsys)
+    # a PNG of the trajectory is the PNG alone: a PDF of the user's beside it is untouched
+    (tmp_path / "fig.pdf").write_text("my paper figure")
+    assert main(["show", "task3", "--data", str(data), "--out", str(tmp_path / "fig.png")]) == 0
+    assert (tmp_path / "fig.pdf").read_text() == "my paper figure"
+    capsys.readouterr()
+    # a file that is no data set: one line
+    (tmp_path / "junk.npz").write_text("junk")
+    assert main(["show", "task3", "--data", str(tmp_path / "junk.npz"), "--out",
+                 str(tmp_path / "j.gif")]) == 2
+    assert "junk.npz: cannot be read as a data set" in _err(capsys)

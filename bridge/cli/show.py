@@ -76,6 +76,6 @@ def cmd_show(args) -> int:
     if suffix == ".gif":
         path = shape_animation(spec, t, q, {}, path=out, title=title)
     else:
-        path = shape_figure(spec, t, q, {}, path=out, title=title)
+        path = shape_figure(spec, t, q, {}, path=out, title=title, pdf=False)
     print(f"wrote {path} (trajectory {tid}, {t[-1] - t[0]:.3g} s)")
     return 0

@@ -114,7 +114,7 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
 
 def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, np.ndarray],
                  *, path: str | Path, title: str, instants: int = 4,
-                 dpi: int | None = None) -> Path:
+                 dpi: int | None = None, pdf: bool = True) -> Path:
     """The true (black) and predicted backbones at ``instants`` times of a rollout, one panel
     each; a prediction that diverged before an instant is left out of that panel."""
     import matplotlib
@@ -163,7 +163,7 @@ def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[s
             ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(title + gravity_words(spec), fontsize=10)
     path = Path(path)
-    save_for_print(fig, path, dpi=dpi)
+    save_for_print(fig, path, dpi=dpi, pdf=pdf)  # show writes the PNG alone: no side file
     plt.close(fig)
     return path
 
