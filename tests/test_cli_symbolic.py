@@ -63,7 +63,11 @@ def test_matrices_json(capsys):
     assert np.array(d["A"]).shape == (3, 3) and np.array(d["C"]).shape == (3, 3)
     assert len(d["qdd"]) == 3 and d["u"] == [0.1, 0.2, 0.3]
     status, out, _ = run(capsys, "matrices", "task4", "--q", 1, 0.2, 0.15)
-    assert status == 0 and "M =" in out and "G =" in out
+    assert status == 0 and "M =" in out and "G =" in out and "energy V [J]" in out
+    assert "-0.000000e+00" not in out
+    # a configuration no arm can take: a note (the equations still evaluate)
+    status, out, err = run(capsys, "matrices", "task4", "--q", 0.01, 0.005, -2)
+    assert status == 0 and "dL1 = -2 makes segment 1 -1.8 m long" in err
 
 
 def test_derive_writes_everything(capsys, tmp_path):

@@ -248,17 +248,36 @@ def cmd_matrices(args) -> int:
     if args.json:
         print(dumps(plain, what="matrices"))
         return 0
+    for note in _impossible_lengths(spec, q):
+        print(f"softpinn: note: {note}", file=sys.stderr)
+    labels = {"energy": ("energy T + V [J]" if qd is not None
+                         else "energy V [J] (at rest: gravity and elasticity)")}
     with np.printoptions(precision=6, suppress=False, linewidth=100):
         for key, value in out.items():
             if key == "model":
                 print(f"model: {value}")
                 continue
-            arr = np.asarray(value)
+            arr = np.asarray(value) + 0.0  # + 0.0: no '-0.000000e+00'
+            name = labels.get(key, key)
             if arr.ndim == 2:
-                print(f"{key} =\n{arr}")
+                print(f"{name} =\n{arr}")
             else:
-                print(f"{key} = {arr}")
+                print(f"{name} = {arr}")
     return 0
+
+
+def _impossible_lengths(spec, q) -> list[str]:
+    """A note per segment whose length L0 + dL the configuration makes zero or negative."""
+    notes = []
+    for i, seg in enumerate(spec.segments or ()):
+        name = f"dL{i + 1}"
+        if name in spec.coordinate_names:
+            length = float(seg.length) + float(q[spec.coordinate_names.index(name)])
+            if length <= 0:
+                notes.append(f"{name} = {q[spec.coordinate_names.index(name)]:g} makes segment "
+                             f"{i + 1} {length:g} m long (rest length {seg.length:g} m): no arm "
+                             "has that shape")
+    return notes
 
 
 def cmd_derive(args) -> int:
