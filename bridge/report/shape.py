@@ -44,12 +44,17 @@ def gravity_up_axis(spec) -> bool:
 
 
 def gravity_words(spec) -> str:
-    """' (gravity down the page: +z)' for a title, or '' where the spec has no vertical
-    gravity."""
+    """'gravity down the page: +z' for a title, or '' where the spec has no vertical gravity."""
     g = tuple(getattr(spec, "gravity", ()) or ())
     if len(g) not in (2, 3) or g[-1] == 0:
         return ""
-    return f" (gravity down the page: {'+' if g[-1] > 0 else '−'}{'yz'[len(g) - 2]})"
+    return f"gravity down the page: {'+' if g[-1] > 0 else '−'}{'yz'[len(g) - 2]}"
+
+
+def _with_gravity(title: str, spec) -> str:
+    """``title (gravity down the page: +z)``, or the title as it is."""
+    words = gravity_words(spec)
+    return f"{title} ({words})" if words else title
 
 
 def _limits(ax, points: np.ndarray, spec=None, margin: float = 1.1) -> tuple:
@@ -104,7 +109,8 @@ def draw_configurations(spec, q, *, path: str | Path, title: str = "",
         _draw(ax, p, color=f"C{i % 10}", label=label)
     _limits(ax, pts, spec)
     ax.legend(fontsize=7, loc="upper left")
-    ax.set_title((title or f"{spec.name}: backbone (base ■, tip ●)") + gravity_words(spec),
+    words = gravity_words(spec)
+    ax.set_title(title or f"{spec.name}: backbone (base ■, tip ●{'; ' + words if words else ''})",
                  fontsize=10)
     path = Path(path)
     fig.savefig(path, dpi=dpi)
@@ -161,7 +167,7 @@ def shape_figure(spec, t: np.ndarray, q_true: np.ndarray, predictions: Mapping[s
                   fontsize=7, color="0.3")
         if j == 0:
             ax.legend(fontsize=7, loc="upper left")
-    fig.suptitle(title + gravity_words(spec), fontsize=10)
+    fig.suptitle(_with_gravity(title, spec), fontsize=10)
     path = Path(path)
     save_for_print(fig, path, dpi=dpi, pdf=pdf)  # show writes the PNG alone: no side file
     plt.close(fig)
@@ -198,7 +204,7 @@ def shape_animation(spec, t: np.ndarray, q_true: np.ndarray,
     ax = _axes(fig, dim)
     every = np.concatenate([true_pts] + [p[~np.isnan(p).any(axis=(1, 2))] for p in preds.values()])
     _limits(ax, every, spec)
-    title = title + gravity_words(spec)
+    title = _with_gravity(title, spec)
     line_true, = ax.plot(*true_pts[0], "k-", lw=2.2, label="truth")
     lines = {k: ax.plot(*p[0], "--", lw=1.8, color=COLORS.get(k, "C2"),
                         label=NETWORK.get(k, k))[0] for k, p in preds.items()}
