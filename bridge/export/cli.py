@@ -36,7 +36,12 @@ def cmd_export(args) -> int:
     jax.config.update("jax_enable_x64", True)
     from .writer import export_run
 
-    result = export_run(args.run, args.out, member=args.member, mean=args.mean, force=args.force)
+    def log(text):
+        if not args.json:
+            print(f"export: {text}", file=sys.stderr, flush=True)
+
+    result = export_run(args.run, args.out, member=args.member, mean=args.mean, force=args.force,
+                        log=log)
     if args.json:
         print(json.dumps(result, indent=1))
     else:

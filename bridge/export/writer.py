@@ -74,6 +74,23 @@ def _select_members(run: Path, info: dict, member, mean: bool) -> list[int | Non
     return [member] if "members" in info else [None]
 
 
+def _check_out(out: Path, force: bool) -> None:
+    """The refusals of :func:`_prepare_out`, before any work and without writing anything."""
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out}: exists and is not a directory")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise UserError(f"--out {out}: directory exists and is not empty; pass --force to "
+                        "overwrite it")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"--out {out}: cannot write there ({parent} is not a directory)")
+            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
+                raise UserError(f"--out {out}: cannot write there (no write permission in "
+                                f"{parent})")
+            break
+
+
 def _prepare_out(out: Path, force: bool) -> None:
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
@@ -149,7 +166,7 @@ def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dic
     }
 
 
-def _write_c(fns: dict, out: Path, compiler) -> dict:
+def _write_c(fns: dict, out: Path, compiler, log=lambda text: None) -> dict:
     """model.c + model.h (CasADi code generator) and model.so from the project's code cache."""
     from softpinn.symbolic.codegen import compile_functions
 
@@ -157,6 +174,9 @@ def _write_c(fns: dict, out: Path, compiler) -> dict:
     for key in sorted(fns):
         cg.add(fns[key])
     cg.generate(str(out) + os.sep)
+    size = sum(p.stat().st_size for p in out.glob("*.c")) / 1e6
+    log(f"compiling {size:.1f} MB of C (a minute or more for a large network; the library is "
+        "cached for the next export of the same model)")
     built = compile_functions(fns, compiler=compiler)
     library = None
     if built.compiled and built.library is not None:
@@ -177,28 +197,34 @@ def _write_c(fns: dict, out: Path, compiler) -> dict:
 
 
 def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = False,
-               force: bool = False, compiler=None) -> ExportResult:
+               force: bool = False, compiler=None, log=None) -> ExportResult:
     """Export a trained run (one member, the best member, or the ensemble mean) to ``out_dir``.
 
     ``member``: the seed of an ensemble member (default: the best member, as ``load_run``);
     ``mean``: the mean of all members' vector fields. ``force`` overwrites a non-empty
     ``out_dir``. ``compiler``: the C compiler (default: ``$CC``, gcc, cc). Returns the metadata
-    written to ``model.json`` (with the symbolic Functions on ``.functions``).
+    written to ``model.json`` (with the symbolic Functions on ``.functions``). ``log(text)``:
+    told each stage as it starts (the C compile of a large network takes a minute or more).
     """
     from softpinn.learn import load_run
+
+    log = log or (lambda text: None)
 
     run, out = Path(run_dir), Path(out_dir)
     info = _run_info(run)
     seeds = _select_members(run, info, member, mean)
+    _check_out(out, force)
     loaded = [load_run(run, member=s) for s in seeds]
     train_cfg = loaded[0].train_config
     params = [model_params(r.model) for r in loaded]
+    log(f"building the CasADi Functions of {len(loaded)} model(s)")
     fns = export_functions(params, substeps=train_cfg.substeps, input_hold=train_cfg.input_hold)
     _prepare_out(out, force)
+    log(f"writing the Functions and model.c to {out}")
     fns["qdd"].save(str(out / "model.casadi"))
     for key, fn in fns.items():
         fn.save(str(out / f"{key}.casadi"))
-    c_info = _write_c(fns, out, compiler)
+    c_info = _write_c(fns, out, compiler, log)
 
     first = params[0]
     n, m = first["n"], first["m"]
