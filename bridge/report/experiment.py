@@ -124,20 +124,21 @@ def bending_table(results: Mapping[str, Any]) -> Table:
     spans = [Span("", "rate"), Span("", "preprocessing"), Span("alpha", "α"),
              Span("alpha", "M"), Span("alpha", "D"), Span("alpha", "G"), Span("alpha", "A"),
              Span("joint P(q)", "M"), Span("joint P(q)", "D"), Span("joint P(q)", "G"),
-             Span("joint P(q)", "A")]
+             Span("joint P(q)", "A"), Span("constant P", "M"), Span("constant P", "D"),
+             Span("constant P", "G"), Span("constant P", "A")]
     rows = []
     for rn, per in results["rates"].items():
         for p, entry in per["preprocessing"].items():
             b = entry["models"]["lagrangian"].get("bending", {})
-            a, j = b.get("alpha", {}), b.get("joint", {})
-            ra, rj = a.get("residual") or {}, j.get("residual") or {}
-            rows.append((rn, p, _fmt(a.get("alpha")),
-                         *(_pct(ra.get(k)) for k in ("M", "D", "G", "A")),
-                         *(_pct(rj.get(k)) for k in ("M", "D", "G", "A"))))
+            res = [(b.get(name) or {}).get("residual") or {}
+                   for name in ("alpha", "joint", "constant")]
+            rows.append((rn, p, _fmt((b.get("alpha") or {}).get("alpha")),
+                         *(_pct(r.get(k)) for r in res for k in ("M", "D", "G", "A"))))
     return Table(tuple(spans), tuple(rows),
                  caption="The Lagrangian network's bending block (dx, dy at dL = 0) against the "
                          "true one: relative residual ‖P X̂ − X‖/‖X‖ per matrix, one scalar α "
-                         "(learned ≈ α true) and a free 2×2 P(q) at each q")
+                         "(learned ≈ α true), a free 2×2 P(q) at each q, and one constant "
+                         "2×2 P")
 
 
 def _pct(x) -> str:
