@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import jax.numpy as jnp
+import numpy as np
 
 from . import checkpoint as ckpt
 from . import distributed
@@ -234,9 +235,15 @@ def train(
     ensure_dtype(config.model.dtype)
     dtype = jnp.dtype(config.model.dtype)
 
-    train_ids, test_ids = split_trajectories(
-        data, test=config.test_trajectories, seed=config.split_seed
-    )
+    if resume and isinstance(stored.get("split"), dict):
+        # the split the run was trained with, as it recorded it: a default that changed since
+        # (a recorded test split of the file instead of 20% at random) must not move it
+        train_ids = np.asarray(stored["split"]["train"], dtype=np.int64)
+        test_ids = np.asarray(stored["split"]["test"], dtype=np.int64)
+    else:
+        train_ids, test_ids = split_trajectories(
+            data, test=config.test_trajectories, seed=config.split_seed
+        )
     state = config.model.state_kind
     if config.loss == "rollout":
         h = config.rollout_steps

@@ -87,3 +87,23 @@ def test_more_epochs_after_lbfgs_are_refused(data, tmp_path):
     with pytest.raises(UserError, match="ended with 10 L-BFGS iterations after 2 epochs"):
         train(data, blackbox_train_config(epochs=4, lbfgs_steps=10), out, resume=True)
     assert ckpt.read_json(out / "config.json")["train"]["epochs"] == 2
+
+
+def test_resume_keeps_the_split_the_run_recorded(data, tmp_path, monkeypatch):
+    """A resumed run goes on with the trajectories its config.json records as its split; it
+    does not draw them again (a default that changed since must not move them)."""
+    import importlib
+
+    train_module = importlib.import_module("softpinn.learn.train")  # the module, not train()
+
+    out = tmp_path / "run"
+    train(data, blackbox_train_config(epochs=3), out)
+    recorded = ckpt.read_json(out / "config.json")["split"]
+
+    def no_new_split(*args, **kwargs):
+        raise AssertionError("the split was drawn again on resume")
+
+    monkeypatch.setattr(train_module, "split_trajectories", no_new_split)
+    res = train(data, blackbox_train_config(epochs=6), out, resume=True)
+    assert ckpt.read_json(out / "config.json")["split"] == recorded
+    assert res.members[0].metrics["epochs_run"] == 6
