@@ -90,6 +90,22 @@ def changed_files(out: str | Path) -> list[str]:
     return changed
 
 
+def check_parent(out: str | Path, flag: str) -> None:
+    """Refuse, with one line naming ``flag``, an output path that cannot be made: its nearest
+    existing ancestor is a file, or (for a path not there yet) a folder without write
+    permission."""
+    out = Path(out)
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise UserError(f"{flag}: {out}: cannot write there ({parent} is a file, not "
+                                "a folder)")
+            if not out.exists() and not os.access(parent, os.W_OK | os.X_OK):
+                raise UserError(f"{flag}: {out}: cannot write there (no write permission in "
+                                f"{parent})")
+            return
+
+
 def check(out: str | Path, command: str, *, force: bool = False) -> str | None:
     """Refuse, with one line, an ``out`` that ``command`` may not write into (see the module's
     docstring; also a file of an earlier output of ``command`` that its user has edited since);
@@ -97,11 +113,7 @@ def check(out: str | Path, command: str, *, force: bool = False) -> str | None:
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise UserError(f"out: {out} is a file, not a folder")
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UserError(f"out: {out}: {parent} is a file, not a folder")
-            break
+    check_parent(out, "out")
     who = owner(out)
     if who is not None and who != command and not force:
         raise UserError(

@@ -183,7 +183,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     from .. import outputs
 
     if out is not None:
-        _precheck_out(Path(out), force)
+        outputs.check(Path(out), "control", force=force)  # one line, before any work
     say = log or (lambda line: None)
     tm = TrueModel(spec)
     output = tip_output(spec)
@@ -313,23 +313,6 @@ def _run_kind(run) -> str:
     if isinstance(model, dict) and model.get("input_form") == "known":
         name += ", A known"
     return name
-
-
-def _precheck_out(out: Path, force: bool) -> None:
-    """The errors :func:`softpinn.bridge.outputs.claim` would give, before anything is done."""
-    from .. import outputs
-
-    if out.exists() and not out.is_dir():
-        raise UserError(f"out: {out} is a file, not a folder")
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UserError(f"out: {out}: {parent} is a file, not a folder")
-            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
-                raise UserError(f"out: {out}: cannot write there (no write permission in "
-                                f"{parent})")
-            break
-    outputs.check(out, "control", force=force)  # its one-line refusal, before any work
 
 
 def _load() -> list[float] | None:

@@ -76,27 +76,18 @@ def _select_members(run: Path, info: dict, member, mean: bool) -> list[int | Non
 
 def _check_out(out: Path, force: bool) -> None:
     """The refusals of :func:`_prepare_out`, before any work and without writing anything."""
+    from .. import outputs
+
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
     if out.is_dir() and any(out.iterdir()) and not force:
         raise UserError(f"--out {out}: directory exists and is not empty; pass --force to "
                         "overwrite it")
-    for parent in out.parents:
-        if parent.exists():
-            if not parent.is_dir():
-                raise UserError(f"--out {out}: cannot write there ({parent} is not a directory)")
-            if not os.access(parent, os.W_OK | os.X_OK) and not out.exists():
-                raise UserError(f"--out {out}: cannot write there (no write permission in "
-                                f"{parent})")
-            break
+    outputs.check_parent(out, "--out")
 
 
 def _prepare_out(out: Path, force: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out}: exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not force:
-        raise UserError(f"--out {out}: directory exists and is not empty; pass --force to "
-                        "overwrite it")
+    _check_out(out, force)
     try:
         out.mkdir(parents=True, exist_ok=True)
         fd, probe = tempfile.mkstemp(prefix=".probe-", dir=out)
