@@ -254,7 +254,7 @@ def test_predict_says_which_rollouts_ran_away():
     and std (the mean over all is inf, as the paper's tables have it)."""
     from types import SimpleNamespace
 
-    from softpinn.bridge.cli.learn import _ran_away_text
+    from softpinn.bridge.cli.runnotes import ran_away_text
 
     t = np.arange(5) * 0.5
     q = np.ones((5, 2))
@@ -263,10 +263,10 @@ def test_predict_says_which_rollouts_ran_away():
     res = SimpleNamespace(rollout_errors=[0.1, float("inf"), 0.3], trajectories=[4, 7, 9],
                           rollouts=[{"t": t, "q_pred": q}, {"t": t, "q_pred": bad},
                                     {"t": t, "q_pred": q}])
-    assert _ran_away_text(res) == ("; 1 of 3 ran away (trajectory 7, at t = 1.5 s), the other "
+    assert ran_away_text(res) == ("; 1 of 3 ran away (trajectory 7, at t = 1.5 s), the other "
                                    "2: 2.0000e-01 ± 1.000e-01")
     res.rollout_errors = [0.1, 0.2, 0.3]
-    assert _ran_away_text(res) == ""
+    assert ran_away_text(res) == ""
 
 
 def test_an_interrupted_run_says_how_to_go_on(data, tmp_path, capsys):

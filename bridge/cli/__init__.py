@@ -18,6 +18,7 @@ COMMAND_MODULES = (
     "softpinn.bridge.cli.data",
     "softpinn.bridge.cli.excitation",
     "softpinn.bridge.cli.learn",
+    "softpinn.bridge.cli.predict",
     "softpinn.bridge.cli.bridge",
     "softpinn.bridge.cli.show",
     "softpinn.bridge.cli.sweep",

@@ -9,7 +9,8 @@ import time
 
 from .. import outputs
 from ..errors import UserError
-from .learn import _enable_x64, _member_notes
+from .learn import _enable_x64
+from .runnotes import member_notes
 
 
 def register(subparsers) -> None:
@@ -140,7 +141,7 @@ def cmd_analyze(args) -> int:
     samples = _force_samples(run, args.data, args.samples, transforms)
     out = outputs.claim(args.out, "analyze", force=args.force)
     result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
-    notes = _recorded_notes(run, spec) + _member_notes(args.run, run, args.member)
+    notes = _recorded_notes(run, spec) + member_notes(args.run, run, args.member)
     for note in notes:
         print(f"softpinn: note: {note}", file=sys.stderr)
     paths = write_report(result, out, max_table_q=max(k, 3), notes=notes)

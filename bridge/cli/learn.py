@@ -1,14 +1,14 @@
-"""``softpinn train`` and ``softpinn predict``: flags mapped onto :func:`learn.train.train` and
-:func:`learn.predict.predict`; the progress bar is drawn from the training callback."""
+"""``softpinn train``: flags mapped onto :func:`learn.train.train`; the progress bar is drawn
+from the training callback (``softpinn predict``: :mod:`bridge.cli.predict`)."""
 
 from __future__ import annotations
 
 import json
 import sys
-from types import SimpleNamespace
 
 from .bars import LbfgsBar as LbfgsBar  # re-exported: cli.bridge draws it
 from .bars import TrainBar
+from .runnotes import held_out_text
 
 _Bar = TrainBar  # the name the tests and older code use
 
@@ -170,50 +170,6 @@ def register(subparsers) -> None:
     run.add_argument("--json", action="store_true", help="print the metrics as one JSON object")
     p.set_defaults(func=cmd_train, given=frozenset())
     track_given(p)
-
-    q = subparsers.add_parser(
-        "predict",
-        help="one-step and rollout errors of a trained model",
-        description=(
-            "One-step test error (eq. 8/9 per pair, mean ± std) and rollouts from the true "
-            "initial state with the true inputs over --horizon seconds (mean squared error of q "
-            "per trajectory, mean ± std over trajectories)."
-        ),
-    )
-    q.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
-    q.add_argument("data", metavar="DATA.npz", help="dataset file")
-    q.add_argument("--horizon", type=float, required=True, metavar="S",
-                   help="rollout length [s] from each test trajectory's start")
-    q.add_argument(
-        "--reset-every",
-        type=float,
-        default=None,
-        metavar="S",
-        help="re-set the state to the truth every S seconds",
-    )
-    q.add_argument(
-        "--dt",
-        type=float,
-        default=None,
-        metavar="S",
-        help="integrate with this step instead of the data's",
-    )
-    q.add_argument(
-        "--trajectories",
-        nargs="+",
-        default=["auto"],
-        metavar="ID",
-        help="'test' (the run's held-out ones), 'all', or ids (default: test if "
-        "DATA is the training file, else all)",
-    )
-    q.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
-    q.add_argument("--json", action="store_true", help="print one JSON object")
-    q.add_argument("--plot", default=None, metavar="FILE",
-                   help="PNG of predicted vs true q (an existing file is replaced only if "
-                   "softpinn wrote it, or with --force)")
-    q.add_argument("--force", action="store_true",
-                   help="let --plot replace a file that softpinn did not write")
-    q.set_defaults(func=cmd_predict)
 
 
 def track_given(parser) -> None:
@@ -381,92 +337,9 @@ def cmd_train(args) -> int:
         )
         spread = f" ± {bt['std']:.3e}" if len(m["seeds"]) > 1 else ""
         print(f"best test loss: {bt['mean']:.4e}{spread}   (best seed {m['best_member']})")
-        print(_held_out_text(result.run_dir, config, data))
+        print(held_out_text(result.run_dir, config, data))
         print(f"run directory: {result.run_dir}")
     return 0
-
-
-def _member_notes(run_dir, run, member) -> list[str]:
-    """Which member of an ensemble run the command used, and how it was chosen."""
-    from pathlib import Path
-
-    from softpinn.learn.checkpoint import read_json
-
-    try:
-        info = read_json(Path(run_dir) / "config.json")
-    except Exception:  # noqa: BLE001 - a member folder or no config: one model
-        return []
-    seeds = info.get("seeds") if isinstance(info, dict) and "members" in info else None
-    if not seeds:
-        return []
-    how = "given by --member" if member is not None else "the best test loss; --member SEED " \
-          "chooses another"
-    return [f"{run_dir} is an ensemble of {len(seeds)} seeds; this is seed {run.seed} ({how})"]
-
-
-def _note_interrupted(run_dir) -> None:
-    """A note on stderr where the run's training was interrupted: its model is the best so far,
-    not a finished run's."""
-    from pathlib import Path
-
-    from softpinn.learn.checkpoint import read_json
-
-    try:
-        metrics = read_json(Path(run_dir) / "metrics.json")
-    except Exception:  # noqa: BLE001 - no metrics: nothing to say
-        return
-    stops = [m.get("stopped", "") for m in metrics.get("members", [metrics])
-             if isinstance(m, dict)]
-    cut = [s for s in stops if str(s).startswith("interrupted")]
-    if cut:
-        print(f"softpinn: note: the training of {run_dir} was {cut[0].split(' (')[0]}: its "
-              "model is the best so far (train --resume finishes it)", file=sys.stderr)
-
-
-def _ran_away_text(res) -> str:
-    """'; 1 of 4 ran away (trajectory 11, at t = 15.3 s), the other 3: 0.016 ± 0.009', or ''."""
-    import numpy as np
-
-    errors = np.asarray(res.rollout_errors, float)
-    bad = ~np.isfinite(errors)
-    if not bad.any():
-        return ""
-    where = []
-    for i in np.flatnonzero(bad):
-        roll = res.rollouts[i]
-        q = np.asarray(roll["q_pred"], float)
-        rows = np.flatnonzero(~np.isfinite(q).reshape(len(q), -1).all(axis=1))
-        when = f", at t = {float(np.asarray(roll['t'])[rows[0]]):.3g} s" if rows.size else ""
-        where.append(f"trajectory {res.trajectories[i]}{when}")
-    text = f"; {int(bad.sum())} of {len(errors)} ran away ({'; '.join(where[:3])}"
-    text += f"; {len(where) - 3} more)" if len(where) > 3 else ")"
-    good = errors[~bad]
-    if good.size:
-        text += f", the other {good.size}: {good.mean():.4e} ± {good.std():.3e}"
-    return text
-
-
-def _held_out_text(run_dir, config, data) -> str:
-    """Which trajectories the test loss was measured on, and where that split came from."""
-    from pathlib import Path
-
-    from softpinn.learn.checkpoint import read_json
-    from softpinn.learn.data import recorded_test_split
-
-    split = read_json(Path(run_dir) / "config.json")["split"]
-    test = split["test"]
-    if test == split["train"]:
-        return ("held out: nothing (the file has one trajectory: the test loss is measured on "
-                "the training trajectory)")
-    given = config.test_trajectories
-    if isinstance(given, tuple):
-        source = "given"
-    elif given is None and recorded_test_split(data) == test:
-        source = "the test split the file records"
-    else:
-        source = f"drawn at random, --split-seed {config.split_seed}"
-    ids = ", ".join(map(str, test))
-    return f"held out: trajector{'y' if len(test) == 1 else 'ies'} {ids} ({source})"
 
 
 def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:
@@ -542,63 +415,3 @@ def _nulls(obj):
     if isinstance(obj, float) and not math.isfinite(obj):
         return None
     return obj
-
-
-def cmd_predict(args) -> int:
-    _enable_x64()
-    from pathlib import Path
-
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.predict import predict
-
-    if Path(args.run).is_file() and Path(args.data).is_dir():
-        raise UserError(f"RUN {args.run} is a file and DATA {args.data} a folder; the order is "
-                        "`softpinn predict RUN DATA.npz`")
-
-    traj = args.trajectories
-    if len(traj) == 1 and traj[0] in ("auto", "test", "all"):
-        traj = traj[0]
-    else:
-        from softpinn.learn.errors import UserError
-
-        try:
-            traj = [int(t) for t in traj]
-        except ValueError:
-            raise UserError(
-                f"--trajectories takes 'test', 'all' or integer ids, got {' '.join(traj)}"
-            ) from None
-    res = predict(
-        args.run,
-        args.data,
-        horizon=args.horizon,
-        reset_every=args.reset_every,
-        dt=args.dt,
-        trajectories=traj,
-        member=args.member,
-        plot=args.plot,
-        force=args.force,
-    )
-    out = res.to_json()
-    _note_interrupted(out["run"])
-    for note in _member_notes(args.run, SimpleNamespace(seed=out["seed"]), args.member):
-        print(f"softpinn: note: {note}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(out, allow_nan=False))
-        return 0
-    one = out["one_step_error"]
-    fmt = lambda x: "inf" if x is None else f"{x:.4e}"
-    print(f"one-step error: {fmt(one['mean'])} ± {fmt(one['std'])} over {one['pairs']} pairs")
-    extra = ""
-    if args.reset_every:
-        extra += f", reset every {args.reset_every:g} s"
-    if args.dt:
-        extra += f", dt {args.dt:g} s"
-    count = len(out["trajectories"])
-    print(
-        f"rollout error ({args.horizon:g} s{extra}): {fmt(out['rollout_error_mean'])} ± "
-        f"{fmt(out['rollout_error_std'])} over {count} trajector{'y' if count == 1 else 'ies'}"
-        f"{_ran_away_text(res)}"
-    )
-    if out["plot"]:
-        print(f"plot: {out['plot']}")
-    return 0
