@@ -81,7 +81,7 @@ class TrainConfig:
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
     ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (the file's
-    recorded test split, else 20%: :func:`learn.data.split_trajectories`);
+    recorded test split, else 20%: :func:`learn.splits.split_trajectories`);
     ``split_seed`` draws the split, the ``samples`` subset of training pairs and the
     ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each;
     a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly

@@ -40,7 +40,6 @@ from .data import (
     load_dataset,
     make_pairs,
     make_windows,
-    split_trajectories,
 )
 from .ensemble import (
     MemberGroup,
@@ -69,6 +68,7 @@ from .rundir import (
     mean_history,
     member_dir,
 )
+from .splits import split_trajectories
 from .velocity import resolve_momenta
 
 __all__ = [

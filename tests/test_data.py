@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
 
-from softpinn.learn.data import load_dataset, make_pairs, mass_scale, split_trajectories
+from softpinn.learn.data import load_dataset, make_pairs, mass_scale
 from softpinn.learn.errors import UserError
+from softpinn.learn.splits import split_trajectories
 
 
 @pytest.fixture(scope="module")

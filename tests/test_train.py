@@ -267,9 +267,10 @@ def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_p
     # the test loss on a subset: the metrics count it, and the best test loss is the mean eq. 8
     # error of the best model on exactly those pairs (make_pairs' draw with the split seed); a
     # subset at least as large as the test set is the whole test set
-    from softpinn.learn.data import make_pairs, split_trajectories
+    from softpinn.learn.data import make_pairs
     from softpinn.learn.losses import Pairs
     from softpinn.learn.predict import one_step_errors
+    from softpinn.learn.splits import split_trajectories
 
     base = dict(epochs=2, test_trajectories=[3, 4], **F32)
     full = train(msd, blackbox_train_config(**base), tmp_path / "full")
@@ -357,9 +358,10 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
 def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
     # test_with "pair": eq. 10 trains, the held-out pairs are scored by eq. 8 (one RK4 step):
     # the same training, another test column, and the best model is the one that predicts best
-    from softpinn.learn.data import make_pairs, split_trajectories
+    from softpinn.learn.data import make_pairs
     from softpinn.learn.losses import pair_loss
     from softpinn.learn.programs import to_pairs
+    from softpinn.learn.splits import split_trajectories
 
     kw = dict(loss="accel", lr=3e-2, input_hold="linear", checkpoint_every=4)
     plain = train(msd, blackbox_train_config(**kw), tmp_path / "a").members[0]

@@ -290,7 +290,7 @@ def cmd_train(args) -> int:
         data = load_dataset(args.data, n=config.model.n, m=config.model.m)
         config = _resumed_with_flags(args, config, data)
     else:
-        from softpinn.learn.data import split_trajectories
+        from softpinn.learn.splits import split_trajectories
 
         data = load_dataset(args.data)
         test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
@@ -397,7 +397,7 @@ def _resumed_with_flags(args, stored, data):
     if given & _MODEL_FLAGS:
         if args.model is None:
             args.model = stored.model.kind
-        from softpinn.learn.data import split_trajectories
+        from softpinn.learn.splits import split_trajectories
 
         split = changes.get("test_trajectories", stored.test_trajectories)
         train_ids, _ = split_trajectories(data, test=split, seed=stored.split_seed)

@@ -67,7 +67,7 @@ def ran_away_text(res) -> str:
 def held_out_text(run_dir, config, data) -> str:
     """Which trajectories the test loss was measured on, and where that split came from."""
     from softpinn.learn.checkpoint import read_json
-    from softpinn.learn.data import recorded_test_split
+    from softpinn.learn.splits import recorded_test_split
 
     split = read_json(Path(run_dir) / "config.json")["split"]
     test = split["test"]
