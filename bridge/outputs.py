@@ -14,10 +14,8 @@ edited it): the sha256 in the manifest tells.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
-import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -64,11 +62,9 @@ def _describe(who: str) -> str:
 
 
 def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with path.open("rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+    from softpinn.learn.data import file_sha256  # the commands that own folders load learn
+
+    return file_sha256(path)
 
 
 def changed_files(out: str | Path) -> list[str]:
@@ -173,18 +169,11 @@ def written_files(out: str | Path) -> list[Path]:
 
 
 def _write(out: Path, manifest: dict) -> None:
+    """The manifest, written atomically (and readable as the user's files are)."""
+    from softpinn.learn.checkpoint import atomic_write_bytes
+
     text = json.dumps(manifest, indent=2, allow_nan=False) + "\n"
-    fd, tmp = tempfile.mkstemp(prefix=f".{MANIFEST}.", suffix=".tmp", dir=out)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o666 & ~mask)  # as any file the user writes, not mkstemp's 0600
-        os.replace(tmp, out / MANIFEST)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    atomic_write_bytes(out / MANIFEST, text.encode("utf-8"))
 
 
 def to_jsonable(x):
