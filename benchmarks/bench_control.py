@@ -54,8 +54,8 @@ def main() -> None:
     )
     from softpinn.bridge.control.compare import _references, machine
     from softpinn.bridge.control.references import default_radius
-    from softpinn.symbolic.model import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     tm, output = TrueModel(spec), tip_output(spec)

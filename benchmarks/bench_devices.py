@@ -31,9 +31,9 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from datagen import make_dataset  # noqa: E402
 
-from softpinn.learn.config import TrainConfig  # noqa: E402
-from softpinn.learn.models import ModelConfig  # noqa: E402
-from softpinn.learn.train import load_run, train  # noqa: E402
+from softpinn.learn._config import TrainConfig  # noqa: E402
+from softpinn.learn._models import ModelConfig  # noqa: E402
+from softpinn.learn._train import load_run, train  # noqa: E402
 
 
 def main() -> None:

@@ -6,7 +6,7 @@ Parts (each in its own process, so that the XLA thread flags apply before jax is
   PCC arms of 1 and 2 segments, batch 10,000, float64, on ONE core (``sched_setaffinity`` and
   XLA's single-thread flags): CasADi's interpreter (``TrueModel.qdd`` batched), CasADi's
   compiled C with ``map`` (serial), the JAX translation (``jit(vmap)``); translate, trace and
-  XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.kernel` (build time in a
+  XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.codegen._kernel` (build time in a
   fresh cache, per-state time), ``TrueModel.qdd`` on the batch (the kernel); the largest
   differences. ``--segments 4`` adds a 4-segment arm (kernel build and speed; XLA with
   ``--xla-segments``).
@@ -33,7 +33,7 @@ ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
 
 
 def planar_spec(segments: int):
-    from softpinn.symbolic.spec import spec_from_dict
+    from softpinn.symbolic.spec._spec import spec_from_dict
 
     seg = {"length": 0.5, "mass": 0.5, "stiffness": [10.0, 10.0], "damping": [0.4, 0.4]}
     return spec_from_dict({"name": f"planar{segments}", "kind": "planar-pcc",
@@ -42,7 +42,7 @@ def planar_spec(segments: int):
 
 
 def spatial_spec(segments: int):
-    from softpinn.symbolic.spec import spec_from_dict
+    from softpinn.symbolic.spec._spec import spec_from_dict
 
     seg = {"length": 0.2, "mass": 0.3, "radius": 0.0, "actuator_radius": 1.0,
            "stiffness": [1.0, 1.0, 1.0], "damping": [0.1, 0.1, 0.1]}
@@ -76,7 +76,8 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool =
     import numpy as np
 
     from softpinn.bridge.exact import jax_model
-    from softpinn.symbolic import TrueModel, codegen
+    from softpinn.symbolic import TrueModel
+    from softpinn.symbolic.codegen import _codegen as codegen
 
     n, m = spec.n, spec.m
     t0 = time.perf_counter()
@@ -109,8 +110,8 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool =
                                         label="jax") / batch * 1e6
         res["jax_cpu_per_state_us"] = CPU["jax"] / batch * 1e6
     fwd = em.functions["forward"]
-    # the batched C kernel (symbolic.kernel): generate + compile (fresh cache) + run, 1 core
-    from softpinn.symbolic import kernel
+    # the batched C kernel (symbolic.codegen._kernel): generate + compile (fresh cache) + run, 1 core
+    from softpinn.symbolic.codegen import _kernel as kernel
 
     t0 = time.perf_counter()
     ks = kernel.kernels({"forward": fwd}, directory=workdir / f"kcache_{spec.name}")
@@ -186,9 +187,10 @@ def part_simulate(args) -> dict:
     jax.config.update("jax_enable_x64", True)
     from softpinn.bridge.exact import jax_model
     from softpinn.bridge.exact.simulate import rk4_program
-    from softpinn.symbolic import functions, load_spec
-    from softpinn.symbolic.datasets import data_config, draw_trajectories
-    from softpinn.symbolic.simulate import SimulationConfig, simulate
+    from softpinn.symbolic import load_spec
+    from softpinn.symbolic.model import _functions as functions
+    from softpinn.symbolic.simulation._datasets import data_config, draw_trajectories
+    from softpinn.symbolic.simulation._simulate import SimulationConfig, simulate
 
     spec = load_spec("task5")
     em = jax_model(spec)

@@ -1,5 +1,5 @@
 """The exact equations on a GPU: task5's forward dynamics and a batch of RK4 simulations, run by
-the JAX replay of CasADi's instruction lists (:mod:`softpinn.learn.program`), which needs no
+the JAX replay of CasADi's instruction lists (:mod:`softpinn.learn._sx_replay`), which needs no
 CasADi on the GPU machine. Prints JSON.
 
 Two steps, because a GPU machine may have JAX but not CasADi:
@@ -39,7 +39,7 @@ def prepare(out: Path) -> dict:
     jax.config.update("jax_enable_x64", True)
     from softpinn.bridge.exact.serialize import function_data
     from softpinn.symbolic import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.spec._spec import load_spec
 
     out.mkdir(parents=True, exist_ok=True)
     tm = TrueModel(TASK)
@@ -62,7 +62,7 @@ def prepare(out: Path) -> dict:
            "freq": rng.uniform(lo("frequency"), hi("frequency"), (k, m)),
            "offset": rng.uniform(lo("offset"), hi("offset"), (k, m)),
            "phase": rng.uniform(0.0, 2 * np.pi, (k, m))}
-    from softpinn.learn.program import ProgramFunction
+    from softpinn.learn._sx_replay import ProgramFunction
 
     ode = ProgramFunction(json.loads((out / "ode.json").read_text()))
     t0 = time.perf_counter()
@@ -137,7 +137,7 @@ def run(folder: Path, sizes=(10_000, 100_000, 1_000_000), counts=(1_000, 10_000)
     import jax.numpy as jnp
 
     jax.config.update("jax_enable_x64", True)
-    from softpinn.learn.program import ProgramFunction
+    from softpinn.learn._sx_replay import ProgramFunction
 
     ref = np.load(folder / "reference.npz")
     dev = jax.devices()[0]

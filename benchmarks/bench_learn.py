@@ -12,7 +12,7 @@ rollout of one trajectory (one jitted ``lax.scan``; its compile time separately)
 
 Prints one JSON object on stdout (per-row progress on stderr). Ratios (structured vs Hessian
 vs black box) are computed within the run. ``--quick``: n = 6, float32, fewer repetitions. The
-step timing is :mod:`softpinn.learn.steptime` (shared with ``softpinn reproduce challenges``).
+step timing is :mod:`softpinn.learn._steptime` (shared with ``softpinn reproduce challenges``).
 
     python benchmarks/bench_learn.py --quick
     python benchmarks/bench_learn.py --n 2 3 6 12 --dtypes float64 float32
@@ -34,9 +34,9 @@ jax.config.update("jax_enable_x64", True)
 import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 
-from softpinn.learn.integrate import rollout  # noqa: E402
-from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
-from softpinn.learn.steptime import (  # noqa: E402
+from softpinn.learn._integrate import rollout  # noqa: E402
+from softpinn.learn._models import ModelConfig, make_model  # noqa: E402
+from softpinn.learn._steptime import (  # noqa: E402
     KINDS,
     block,
     time_train_steps,

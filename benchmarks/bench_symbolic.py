@@ -24,12 +24,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from softpinn.symbolic import codegen
-from softpinn.symbolic.eom import derive
-from softpinn.symbolic.functions import functions
-from softpinn.symbolic.signals import Zero, sample_signal
-from softpinn.symbolic.simulate import SimulationConfig, simulate
-from softpinn.symbolic.spec import load_spec, spec_from_dict
+from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic.derivation._eom import derive
+from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.simulation._signals import Zero, sample_signal
+from softpinn.symbolic.simulation._simulate import SimulationConfig, simulate
+from softpinn.symbolic.spec._spec import load_spec, spec_from_dict
 
 
 def arm_spec(segments: int, tag: str):

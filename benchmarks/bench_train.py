@@ -1,4 +1,4 @@
-"""Training speed of learn/train.py; prints one JSON object.
+"""Training speed of learn/_train.py; prints one JSON object.
 
 1. ``step``: samples/s of the jitted AdamW training step (one RK4 step per pair, eq. 8/9) per
    model kind, one whole epoch per jitted call (lax.scan over minibatches) against one jitted
@@ -33,11 +33,11 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import optax  # noqa: E402
 
-from softpinn.learn.ensemble import MemberGroup  # noqa: E402
-from softpinn.learn.losses import Pairs, pair_loss  # noqa: E402
-from softpinn.learn.models import ModelConfig, make_model  # noqa: E402
-from softpinn.learn.programs import PROGRAMS  # noqa: E402
-from softpinn.learn.train import TrainConfig, train  # noqa: E402
+from softpinn.learn._ensemble import MemberGroup  # noqa: E402
+from softpinn.learn._losses import Pairs, pair_loss  # noqa: E402
+from softpinn.learn._models import ModelConfig, make_model  # noqa: E402
+from softpinn.learn._programs import PROGRAMS  # noqa: E402
+from softpinn.learn._train import TrainConfig, train  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from datagen import make_dataset  # noqa: E402

@@ -17,9 +17,9 @@ import numpy as np
 
 def main(argv=None):
     from softpinn.bridge.analysis.identifiability import mass_identifiability
-    from softpinn.learn.data import difference_accelerations, load_dataset
-    from softpinn.symbolic.model import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.learn._data import difference_accelerations, load_dataset
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.spec._spec import load_spec
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("data")

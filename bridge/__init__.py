@@ -18,7 +18,7 @@ Nothing here is imported by :mod:`softpinn.symbolic` or :mod:`softpinn.learn`; t
 the only one that imports both.
 """
 
-from .analysis import analyze
-from .tasks import ReproduceConfig, ReproduceResult, make_plan, reproduce
+from softpinn.bridge.analysis import analyze
+from softpinn.bridge.tasks import ReproduceConfig, ReproduceResult, make_plan, reproduce
 
 __all__ = ["ReproduceConfig", "ReproduceResult", "analyze", "make_plan", "reproduce"]

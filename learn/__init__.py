@@ -10,16 +10,16 @@ Core API::
     predict("runs/lnn", "data.npz", horizon=2.7)          # one-step and rollout errors
 """
 
-from .config import TrainConfig
-from .data import load_dataset
-from .errors import UserError
-from .integrate import rk4_step, rollout, step
-from .losses import Pairs, accel_loss, pair_errors, pair_loss, rollout_loss
-from .models import DynamicsModel, ModelConfig, make_model
-from .predict import evaluate, predict
-from .programs import ProgramCache
-from .rundir import LoadedRun, load_ensemble, load_run
-from .train import TrainingDiverged, TrainResult, train
+from softpinn.learn._config import TrainConfig
+from softpinn.learn._data import load_dataset
+from softpinn.errors import UserError
+from softpinn.learn._integrate import rk4_step, rollout, step
+from softpinn.learn._losses import Pairs, accel_loss, pair_errors, pair_loss, rollout_loss
+from softpinn.learn._models import DynamicsModel, ModelConfig, make_model
+from softpinn.learn._predict import evaluate, predict
+from softpinn.learn._programs import ProgramCache
+from softpinn.learn._rundir import LoadedRun, load_ensemble, load_run
+from softpinn.learn._train import TrainingDiverged, TrainResult, train
 
 __all__ = [
     "DynamicsModel",

@@ -1,7 +1,7 @@
 """Training on several processes (hosts): :func:`initialize` joins this process to the others
 through ``jax.distributed`` (a coordinator address, or the environment of a cluster that JAX
 detects by itself: SLURM, Open MPI), after which ``--devices all`` spans every process's devices
-(:mod:`learn.programs`: one data-parallel mesh, gradients reduced by XLA across hosts).
+(:mod:`learn._programs`: one data-parallel mesh, gradients reduced by XLA across hosts).
 
 Every process loads the same data file and runs the same training; process 0 writes the run
 directory, the others write into a private shadow copy that is removed at the end (on a
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import jax
 
-from .errors import UserError
+from softpinn.errors import UserError
 
 
 def initialize(coordinator: str | None = None, num_processes: int | None = None,

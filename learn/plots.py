@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .checkpoint import atomic_write_bytes
-from .errors import UserError
+from softpinn.learn._checkpoint import atomic_write_bytes
+from softpinn.errors import UserError
 
 SOFTWARE = "softpinn"
 _PNG = b"\x89PNG\r\n\x1a\n"

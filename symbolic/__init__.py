@@ -10,11 +10,11 @@ Core API::
     tm = TrueModel("task4")           # numpy face: tm.M(q), tm.qdd(q, qd, u), ... (batched)
 """
 
-from .eom import SymbolicModel, derive
-from .errors import UserError
-from .functions import SIGNATURES, functions
-from .model import TrueModel
-from .spec import ModelSpec, Segment, SpecError, list_presets, load_spec
+from softpinn.symbolic.derivation._eom import SymbolicModel, derive
+from softpinn.errors import UserError
+from softpinn.symbolic.model._functions import SIGNATURES, functions
+from softpinn.symbolic.model._true_model import TrueModel
+from softpinn.symbolic.spec._spec import ModelSpec, Segment, SpecError, list_presets, load_spec
 
 __all__ = [
     "SIGNATURES",

@@ -132,7 +132,7 @@ def make_dataset(path: str | Path, system: str = "msd", **kw) -> Path:
 
 def tiny_model_config(kind: str, n: int = 2, m: int = 1, **kw):
     """Small networks for CI-sized training (imports learn lazily: datagen stays numpy-only)."""
-    from softpinn.learn.models import ModelConfig
+    from softpinn.learn._models import ModelConfig
 
     sizes = dict(mass=(16, 1), potential=(16, 1), damping=(8, 1), input=(8, 1), hidden=(16, 2))
     sizes.update(kw)
@@ -141,7 +141,7 @@ def tiny_model_config(kind: str, n: int = 2, m: int = 1, **kw):
 
 def blackbox_train_config(**kw):
     """The one black-box TrainConfig the quick tests share, so its program compiles once."""
-    from softpinn.learn.train import TrainConfig
+    from softpinn.learn._train import TrainConfig
 
     base = dict(
         model=tiny_model_config("blackbox"),

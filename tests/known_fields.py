@@ -1,4 +1,4 @@
-"""Analytic fields that follow the sub-network protocol of ``learn.nets``, for building
+"""Analytic fields that follow the sub-network protocol of ``learn._nets``, for building
 physics models with known matrices in tests (a network is replaced by a Python function)."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from collections.abc import Callable
 
 import equinox as eqx
 
-from softpinn.learn.linalg import cholesky
+from softpinn.learn._linalg import cholesky
 
 
 class Field(eqx.Module):

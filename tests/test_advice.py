@@ -1,4 +1,4 @@
-"""Settings clearly off for the data are told before training (learn/advice.py): too few
+"""Settings clearly off for the data are told before training (learn/_advice.py): too few
 optimizer steps per epoch, an initial mass diagonal orders of magnitude from the data's."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 from datagen import make_dataset, simulate, tiny_model_config, write
 
 from softpinn.bridge.cli import main
-from softpinn.learn.advice import setting_warnings
-from softpinn.learn.config import TrainConfig
-from softpinn.learn.data import load_dataset, mass_scale
-from softpinn.learn.known import known_input_text
+from softpinn.learn._advice import setting_warnings
+from softpinn.learn._config import TrainConfig
+from softpinn.learn._data import load_dataset, mass_scale
+from softpinn.learn._known_input import known_input_text
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +55,7 @@ def test_mass_far_from_the_data_warns(tmp_path, data):
 
 
 def test_train_logs_and_the_cli_prints_the_flag(data, tmp_path, capsys, caplog):
-    from softpinn.learn.train import train
+    from softpinn.learn._train import train
 
     cfg = TrainConfig(model=tiny_model_config("blackbox"), epochs=1, batch_size=300,
                       test_trajectories=(4,))

@@ -19,10 +19,10 @@ from softpinn.bridge.analysis import (
     summary_numbers,
     write_report,
 )
-from softpinn.bridge.errors import UserError
-from softpinn.bridge.report.tables import read_csv
-from softpinn.learn.models import ModelConfig, make_model
-from softpinn.symbolic.model import TrueModel
+from softpinn.errors import UserError
+from softpinn.bridge.figures.tables import read_csv
+from softpinn.learn._models import ModelConfig, make_model
+from softpinn.symbolic.model._true_model import TrueModel
 
 TABLE_V_Q = np.array([[0.5, 0.5], [0.0, 0.0], [0.0, -0.8]])
 

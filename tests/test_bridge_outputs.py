@@ -9,9 +9,9 @@ import json
 
 import pytest
 
-from softpinn.bridge import outputs
+from softpinn.bridge.base import outputs
 from softpinn.bridge.cli import main
-from softpinn.bridge.errors import UserError
+from softpinn.errors import UserError
 
 
 def _err(capsys) -> str:

@@ -11,7 +11,7 @@ import pytest
 
 from softpinn.bridge.challenges import pipeline
 from softpinn.bridge.cli import main
-from softpinn.bridge.errors import UserError
+from softpinn.errors import UserError
 from softpinn.bridge.tasks import ReproduceConfig
 
 CALLS: list[str] = []

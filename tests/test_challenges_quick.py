@@ -131,7 +131,7 @@ def test_velocity_study_trains_on_excited_data(quick_run):
     segment's corner frequency, and every data set's inertial share along the lightest
     directions of M, in the results and the report."""
     from softpinn.bridge.challenges.velocity_settings import EXCITED_FREQUENCY, FORCE_MODELS
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     study = json.loads((quick_run / "velocity" / "study.json").read_text())["study"]
     variants = study["results"]["tasks"]["task5"]["variants"]

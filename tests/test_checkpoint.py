@@ -1,4 +1,4 @@
-"""Atomic files and run directories (learn/checkpoint.py)."""
+"""Atomic files and run directories (learn/_checkpoint.py)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.errors import UserError
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
 
 
 def test_atomic_write_replaces_and_leaves_no_temp(tmp_path):

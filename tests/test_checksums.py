@@ -9,10 +9,10 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.errors import UserError
-from softpinn.learn.rundir import load_run
-from softpinn.learn.train import train
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
+from softpinn.learn._rundir import load_run
+from softpinn.learn._train import train
 
 
 @pytest.fixture(scope="module")

@@ -19,7 +19,8 @@ from pathlib import Path
 import casadi as ca
 import pytest
 
-from softpinn.symbolic import codegen, outputs
+from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic import _outputs as outputs
 
 
 @pytest.fixture(autouse=True)

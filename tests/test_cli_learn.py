@@ -132,7 +132,7 @@ def test_train_bad_dataset_one_line(change, message, tmp_path, capsys):
 
 
 def test_train_mass_init_from_data(tmp_path, capsys):
-    from softpinn.learn.data import load_dataset, mass_scale
+    from softpinn.learn._data import load_dataset, mass_scale
 
     a = simulate("msd", trajectories=3, duration=1.0)
     a["p"][a["traj"] == 2] *= 10.0  # a held-out trajectory that would move the scale
@@ -213,8 +213,8 @@ def test_train_flags_come_from_the_config_fields():
     import argparse
 
     from softpinn.bridge.cli import build_parser
-    from softpinn.learn.config import GROUPS, TrainConfig
-    from softpinn.learn.models import ModelConfig
+    from softpinn.learn._config import GROUPS, TrainConfig
+    from softpinn.learn._models import ModelConfig
 
     parser = build_parser()
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
@@ -277,7 +277,7 @@ def test_an_interrupted_run_says_how_to_go_on(data, tmp_path, capsys):
     from datagen import blackbox_train_config
 
     from softpinn.bridge.cli import _resume_hint
-    from softpinn.learn.train import train
+    from softpinn.learn._train import train
 
     def stop_at_2(info):
         if info["epoch"] == 2:

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
-from softpinn.symbolic.datasets import read_dataset
+from softpinn.symbolic.simulation._datasets import read_dataset
 
 
 @pytest.fixture(autouse=True)

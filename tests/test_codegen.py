@@ -11,7 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import codegen
+from softpinn.symbolic.codegen import _codegen as codegen
 
 
 def toy_functions(tag: str = "toy") -> dict[str, ca.Function]:
@@ -176,7 +176,7 @@ def test_generate_writes_source_library_casadi_files_and_summary(tmp_path):
 
 def test_task4_generated_code_agrees_with_mx(tmp_path):
     """The real equations of motion (engineer A's functions) through the C compiler."""
-    from softpinn.symbolic.functions import functions
+    from softpinn.symbolic.model._functions import functions
 
     fns = functions("task4")
     res = codegen.compile_functions(fns, directory=tmp_path)

@@ -29,8 +29,8 @@ from softpinn.bridge.control import (
     tip_output,
 )
 from softpinn.bridge.control.models import PredictionModel
-from softpinn.bridge.errors import UserError
-from softpinn.symbolic.model import TrueModel
+from softpinn.errors import UserError
+from softpinn.symbolic.model._true_model import TrueModel
 
 #: the two-mass chain of task 1 with a force on the second mass: the system tests/datagen.py
 #: simulates, so runs trained on its data are models of this spec
@@ -63,7 +63,7 @@ def specs(tmp_path_factory):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """``get(kind, seeds=1)``: a tiny run on the forced chain's data, trained once per module."""
-    from softpinn.learn.train import TrainConfig, train
+    from softpinn.learn._train import TrainConfig, train
 
     data = make_dataset(tmp_path_factory.mktemp("msd") / "msd.npz", trajectories=3,
                         duration=2.0)
@@ -407,8 +407,8 @@ def test_default_input_bounds_cover_the_inputs_simulate_draws(tmp_path):
     range to spare: a multisine sums its components beyond one amplitude, a one-number
     amplitude stands for every input and a missing offset is 0 (they used to give no bounds)."""
     from softpinn.bridge.control import default_input_bounds
-    from softpinn.symbolic.datasets import make_dataset as simulate_data
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.simulation._datasets import make_dataset as simulate_data
+    from softpinn.symbolic.spec._spec import load_spec
 
     path = tmp_path / "arm.toml"
     path.write_text(FULL + """

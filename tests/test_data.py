@@ -1,4 +1,4 @@
-"""Dataset loading, validation, trajectory split and pair construction (learn/data.py)."""
+"""Dataset loading, validation, trajectory split and pair construction (learn/_data.py)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
 
-from softpinn.learn.data import load_dataset, make_pairs, mass_scale
-from softpinn.learn.errors import UserError
-from softpinn.learn.splits import split_trajectories
+from softpinn.learn._data import load_dataset, make_pairs, mass_scale
+from softpinn.errors import UserError
+from softpinn.learn._splits import split_trajectories
 
 
 @pytest.fixture(scope="module")
@@ -195,7 +195,7 @@ def _assert_second_order(errors):
 def test_difference_accelerations_converge_at_second_order(tmp_path):
     """Central differences of q̇ against the recorded q̈: error O(dt²) inside and at the ends,
     never mixing two trajectories."""
-    from softpinn.learn.data import difference_accelerations
+    from softpinn.learn._data import difference_accelerations
 
     errors = []
     for data in _msd_at_rates(tmp_path):
@@ -213,7 +213,7 @@ def test_difference_accelerations_converge_at_second_order(tmp_path):
 def test_difference_momenta_converge_at_second_order(tmp_path):
     """ṗ from central differences of p (eq. 10's labels on momentum data) against M q̈ (the
     mass-spring-damper's M is constant): error O(dt²); the pairs carry (q̇ recorded, ṗ)."""
-    from softpinn.learn.data import difference_momenta
+    from softpinn.learn._data import difference_momenta
 
     M = msd_matrices()[0]
     errors = []

@@ -9,8 +9,8 @@ import json
 import numpy as np
 import pytest
 
-from softpinn.symbolic import datasets
-from softpinn.symbolic.datasets import (
+from softpinn.symbolic.simulation import _datasets as datasets
+from softpinn.symbolic.simulation._datasets import (
     DataError,
     data_config,
     make_dataset,
@@ -23,7 +23,7 @@ from softpinn.symbolic.datasets import (
     take_samples,
     write_dataset,
 )
-from softpinn.symbolic.spec import load_spec, spec_from_toml
+from softpinn.symbolic.spec._spec import load_spec, spec_from_toml
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +79,7 @@ def test_task4_dataset_keys_shapes_and_meta(task4_data, tmp_path):
 
 
 def test_learn_side_loader_accepts_the_file(task4_data, tmp_path):
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     path = write_dataset(tmp_path / "d.npz", task4_data)
     loaded = load_dataset(path, n=3, m=3)
@@ -248,7 +248,7 @@ def test_q0_points_start_the_first_trajectories_and_change_nothing_else():
 
 
 def test_every_preset_data_table_is_valid():
-    from softpinn.symbolic.spec import list_presets
+    from softpinn.symbolic.spec._spec import list_presets
 
     for name in list_presets():
         spec = load_spec(name)

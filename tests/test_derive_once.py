@@ -7,9 +7,9 @@ import json
 
 from softpinn.bridge.cli import main
 
-eom = importlib.import_module("softpinn.symbolic.eom")
-# the module, not the function ``softpinn.symbolic.functions`` that shadows it as an attribute
-functions_mod = importlib.import_module("softpinn.symbolic.functions")
+eom = importlib.import_module("softpinn.symbolic.derivation._eom")
+# the module, not the function ``softpinn.symbolic.model._functions`` that shadows it as an attribute
+functions_mod = importlib.import_module("softpinn.symbolic.model._functions")
 
 
 def test_derive_derives_once(tmp_path, monkeypatch, capsys):

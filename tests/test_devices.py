@@ -16,9 +16,9 @@ import pytest
 from datagen import make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn.config import TrainConfig
-from softpinn.learn.errors import UserError
-from softpinn.learn.models import ModelConfig
+from softpinn.learn._config import TrainConfig
+from softpinn.errors import UserError
+from softpinn.learn._models import ModelConfig
 from softpinn.learn.xlaflags import with_fast_compile
 
 TESTS = Path(__file__).parent
@@ -33,10 +33,10 @@ SCRIPT = textwrap.dedent("""
     import jax.numpy as jnp
     import numpy as np
     from datagen import make_dataset
-    from softpinn.learn.config import TrainConfig
-    from softpinn.learn.models import ModelConfig
-    from softpinn.learn.programs import PROGRAMS, stack
-    from softpinn.learn.train import load_run, train
+    from softpinn.learn._config import TrainConfig
+    from softpinn.learn._models import ModelConfig
+    from softpinn.learn._programs import PROGRAMS, stack
+    from softpinn.learn._train import load_run, train
     from pathlib import Path
     d = Path(sys.argv[1])
     data = make_dataset(d / "msd.npz", trajectories=4, duration=3.0)
@@ -79,7 +79,7 @@ def test_four_devices_give_the_one_device_parameters(tmp_path):
 def test_more_devices_than_there_are_is_one_line(tmp_path, capsys):
     data = make_dataset(tmp_path / "msd.npz", trajectories=3, duration=2.0)
     model = ModelConfig(kind="lagrangian", n=2, m=1, mass=(4, 1), potential=(4, 1))
-    from softpinn.learn.train import train
+    from softpinn.learn._train import train
 
     with pytest.raises(UserError, match="devices: 2 asked for, 1 cpu device.*device_count"):
         train(data, TrainConfig(model=model, epochs=1, devices=2), tmp_path / "run")

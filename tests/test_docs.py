@@ -55,7 +55,7 @@ def test_no_file_points_outside_the_repository():
 
 
 def test_spec_doc_lists_every_data_key():
-    from softpinn.symbolic.datasets import DATA_KEYS
+    from softpinn.symbolic.simulation._datasets import DATA_KEYS
 
     text = (ROOT / "docs" / "spec.md").read_text()
     missing = [k for k in DATA_KEYS if f"`{k}`" not in text]
@@ -63,7 +63,7 @@ def test_spec_doc_lists_every_data_key():
 
 
 def test_recipe_doc_lists_every_recipe_key():
-    from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, NETWORK_KEYS, QUICK_KEYS, TOP_KEYS
+    from softpinn.symbolic.spec._recipe import BUDGET_KEYS, LOSS_KEYS, NETWORK_KEYS, QUICK_KEYS, TOP_KEYS
 
     text = (ROOT / "docs" / "recipes.md").read_text()
     keys = {*TOP_KEYS, *BUDGET_KEYS, *LOSS_KEYS, *QUICK_KEYS,
@@ -95,7 +95,7 @@ def test_cli_doc_shows_every_command():
 
 
 def test_rundir_doc_lists_every_setting_that_may_change_on_resume():
-    from softpinn.learn.config import RESUMABLE
+    from softpinn.learn._config import RESUMABLE
 
     text = (ROOT / "docs" / "rundir.md").read_text()
     missing = [f for f in RESUMABLE if f"`--{f.replace('_', '-')}`" not in text]

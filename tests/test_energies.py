@@ -10,10 +10,11 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import TrueModel, functions
-from softpinn.symbolic.eom import derive
-from softpinn.symbolic.functions import _Builder
-from softpinn.symbolic.spec import spec_from_dict
+from softpinn.symbolic import TrueModel
+from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.derivation._eom import derive
+from softpinn.symbolic.model._functions import _Builder
+from softpinn.symbolic.spec._spec import spec_from_dict
 
 
 def make_spec(nseg, param="delta", radius=0.03, d=0.5, actuation="tip-wrench"):

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.symbolic import TrueModel, UserError, functions
+from softpinn.symbolic import TrueModel, UserError
+from softpinn.symbolic.model import _functions as functions
 
 
 def test_mass_spring_damper_matches_eq25():

@@ -12,16 +12,16 @@ from datagen import make_dataset, msd_matrices
 from known_fields import Field, MassField
 
 from softpinn.bridge.cli import main
-from softpinn.learn.config import RESUMABLE, TrainConfig
-from softpinn.learn.data import load_dataset
-from softpinn.learn.errors import UserError
-from softpinn.learn.losses import Equilibria, label_loss
-from softpinn.learn.models import HamiltonianNet, LagrangianNet, ModelConfig
-from softpinn.symbolic import datafile
-from softpinn.symbolic.datatable import DataError
-from softpinn.symbolic.equilibria import attach, equilibria, input_box
-from softpinn.symbolic.model import TrueModel
-from softpinn.symbolic.spec import load_spec
+from softpinn.learn._config import RESUMABLE, TrainConfig
+from softpinn.learn._data import load_dataset
+from softpinn.errors import UserError
+from softpinn.learn._losses import Equilibria, label_loss
+from softpinn.learn._models import HamiltonianNet, LagrangianNet, ModelConfig
+from softpinn.symbolic.simulation import _datafile as datafile
+from softpinn.symbolic.simulation._datatable import DataError
+from softpinn.symbolic.simulation._equilibria import attach, equilibria, input_box
+from softpinn.symbolic.model._true_model import TrueModel
+from softpinn.symbolic.spec._spec import load_spec
 
 
 @pytest.fixture(scope="module")

@@ -9,16 +9,17 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.exact import jax_model, make_dataset, simulate
-from softpinn.symbolic import functions, load_spec
-from softpinn.symbolic.datasets import (
+from softpinn.symbolic import load_spec
+from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.simulation._datasets import (
     data_config,
     draw_trajectories,
     read_dataset,
     write_dataset,
 )
-from softpinn.symbolic.datasets import make_dataset as casadi_dataset
-from softpinn.symbolic.simulate import SimulationConfig, SimulationError, SingularityError
-from softpinn.symbolic.simulate import simulate as casadi_simulate
+from softpinn.symbolic.simulation._datasets import make_dataset as casadi_dataset
+from softpinn.symbolic.simulation._simulate import SimulationConfig, SimulationError, SingularityError
+from softpinn.symbolic.simulation._simulate import simulate as casadi_simulate
 
 jax.config.update("jax_enable_x64", True)
 
@@ -75,7 +76,7 @@ def test_dataset_has_the_simulate_format(tmp_path, backend):
 
 def test_auto_backend_is_c_on_the_cpu_with_a_compiler_else_jax(monkeypatch):
     from softpinn.bridge.exact.simulate import choose_backend
-    from softpinn.symbolic import kernel
+    from softpinn.symbolic.codegen import _kernel as kernel
 
     assert choose_backend("auto") == ("c" if jax.default_backend() == "cpu" else "jax")
     monkeypatch.setattr(kernel, "find_compiler", lambda compiler=None: None)
@@ -102,7 +103,7 @@ def test_errors_name_the_problem(backend):
 def test_simulate_cli_integrator_jax_rk4(tmp_path, capsys):
     """`softpinn simulate --integrator jax-rk4` writes the CasADi rk4 file's data (to rounding)."""
     from softpinn.bridge.cli import main
-    from softpinn.symbolic.datafile import read_dataset
+    from softpinn.symbolic.simulation._datafile import read_dataset
 
     args = ["simulate", "task1", "--trajectories", "2", "--duration", "0.5", "--rate", "50",
             "--quiet", "--no-compile"]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.analysis.excitation import inertial_share
-from softpinn.symbolic.model import TrueModel
-from softpinn.symbolic.spec import load_spec
+from softpinn.symbolic.model._true_model import TrueModel
+from softpinn.symbolic.spec._spec import load_spec
 
 # task1.toml: masses 1.0 and 1.8; k1 = 2.1 between the masses, k2 = 4.6 to the ground;
 # b = 0.3 between the masses
@@ -60,7 +60,7 @@ def test_cli_table_json_and_refusals(tmp_path, capsys):
     from softpinn.bridge.analysis.excitation import WEAK
     from softpinn.bridge.analysis.forces import data_samples
     from softpinn.bridge.cli import main
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     path = make_dataset(tmp_path / "msd.npz", forced=False, trajectories=3, duration=3.0)
     assert main(["excitation", str(path), "task1", "--samples", "50", "--json"]) == 0

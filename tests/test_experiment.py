@@ -16,7 +16,7 @@ from softpinn.bridge.tasks.experiment import (
     rate_name,
     smoother,
 )
-from softpinn.symbolic.spec import load_spec
+from softpinn.symbolic.spec._spec import load_spec
 
 
 def test_the_full_plan_follows_the_preset():
@@ -44,8 +44,8 @@ def test_the_full_plan_follows_the_preset():
 @pytest.mark.parametrize("line", ["known_input = true", 'loss = "accel"'])
 def test_recipe_settings_the_experiment_does_not_use_are_refused(tmp_path, line):
     """A [training.lagrangian] setting the experiment's pipeline would ignore is one line."""
-    from softpinn.bridge.errors import UserError
-    from softpinn.symbolic.spec import preset_path
+    from softpinn.errors import UserError
+    from softpinn.symbolic.spec._spec import preset_path
 
     text = preset_path("experiment").read_text().replace(
         "[training.lagrangian]\n", f"[training.lagrangian]\n{line}\n", 1)

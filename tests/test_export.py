@@ -15,11 +15,11 @@ import pytest
 from datagen import make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
-from softpinn.bridge.errors import UserError
+from softpinn.errors import UserError
 from softpinn.bridge.export import export_run, load_exported
 from softpinn.learn import load_run
-from softpinn.learn.integrate import step
-from softpinn.learn.train import TrainConfig, train
+from softpinn.learn._integrate import step
+from softpinn.learn._train import TrainConfig, train
 
 #: the kinds, and the training options that shape ``step`` (sub-steps, input hold)
 KINDS = {

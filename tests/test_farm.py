@@ -8,10 +8,10 @@ import pytest
 import ray
 
 from softpinn.bridge.cli import main
-from softpinn.symbolic.datasets import make_dataset
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.farm import ray_init, ray_simulator
-from softpinn.symbolic.spec import load_spec
+from softpinn.symbolic.simulation._datasets import make_dataset
+from softpinn.errors import UserError
+from softpinn.symbolic.simulation._farm import ray_init, ray_simulator
+from softpinn.symbolic.spec._spec import load_spec
 
 
 @pytest.fixture(scope="module")

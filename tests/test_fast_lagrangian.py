@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.learn.known import known_input_text
-from softpinn.learn.losses import pair_loss
-from softpinn.learn.models import LagrangianNet, ModelConfig, make_model
-from softpinn.learn.nets import ZeroMatrix, _log1p_unit, softplus
+from softpinn.learn._known_input import known_input_text
+from softpinn.learn._losses import pair_loss
+from softpinn.learn._models import LagrangianNet, ModelConfig, make_model
+from softpinn.learn._nets import ZeroMatrix, _log1p_unit, softplus
 
 jax.config.update("jax_enable_x64", True)
 
@@ -93,7 +93,7 @@ def test_fused_gradients_equal_separate(config):
 
 def test_fused_and_separate_pair_loss_gradient():
     """The training step's gradient (pair loss, eq. 8, through one RK4 step) is the same."""
-    from softpinn.learn.losses import Pairs
+    from softpinn.learn._losses import Pairs
 
     model = _model(3, 3, "network", "network", {})
     k = jax.random.split(jax.random.PRNGKey(3), 4)
@@ -156,9 +156,9 @@ def test_train_init_warm_start(tmp_path, capsys):
     from datagen import make_dataset, tiny_model_config
 
     from softpinn.bridge.cli import main
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.rundir import load_run
-    from softpinn.learn.train import TrainConfig, train
+    from softpinn.errors import UserError
+    from softpinn.learn._rundir import load_run
+    from softpinn.learn._train import TrainConfig, train
 
     data = make_dataset(tmp_path / "msd.npz", trajectories=3, duration=2.0, rate=20.0)
     model = tiny_model_config("lagrangian")

@@ -1,4 +1,4 @@
-"""The smoothers of softpinn import (symbolic/filters.py) against closed forms: MATLAB's
+"""The smoothers of softpinn import (symbolic/recorded/_filters.py) against closed forms: MATLAB's
 movmean, Savitzky-Golay and piecewise polyfit reproduce the polynomials they fit, with exact
 derivatives; central differences are exact for quadratics; the Hermite resampling is exact for
 cubics."""
@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.symbolic import filters as F
+from softpinn.symbolic.recorded import _filters as F
 
 
 def cubic(t):

@@ -12,11 +12,11 @@ import pytest
 from datagen import blackbox_train_config, make_dataset, simulate, write
 
 from softpinn.bridge.cli import main
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.errors import UserError
-from softpinn.learn.models import ModelConfig
-from softpinn.learn.rundir import load_run
-from softpinn.learn.train import TrainingDiverged, train
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
+from softpinn.learn._models import ModelConfig
+from softpinn.learn._rundir import load_run
+from softpinn.learn._train import TrainingDiverged, train
 
 NAN, INF = float("nan"), float("inf")
 
@@ -62,7 +62,7 @@ def test_cli_huge_seed_is_one_line_and_leaves_nothing(data, tmp_path, capsys):
 
 
 def test_dataset_with_non_finite_values_is_refused(tmp_path):
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     arrays = simulate("msd", trajectories=2, duration=1.0)
     arrays["qd"][3, 1] = INF

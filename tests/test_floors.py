@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.analysis.floors import drift_baseline, integration_floor, true_vector_field
-from softpinn.learn.data import PairData
+from softpinn.learn._data import PairData
 
 
 class Oscillator:

@@ -21,10 +21,10 @@ from softpinn.bridge.analysis.forces import (
 )
 from softpinn.bridge.analysis.matrices import MatrixStack
 from softpinn.bridge.analysis.transforms import fit_transform
-from softpinn.bridge.errors import UserError
-from softpinn.bridge.report.plots import plot_forces
-from softpinn.learn.models import HamiltonianNet, ModelConfig
-from softpinn.symbolic.model import TrueModel
+from softpinn.errors import UserError
+from softpinn.bridge.figures.matrices import plot_forces
+from softpinn.learn._models import HamiltonianNet, ModelConfig
+from softpinn.symbolic.model._true_model import TrueModel
 
 
 def _stacks(N=400, n=3, m=2, seed=0, mass=False):

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic import load_spec
-from softpinn.symbolic.functions import SIGNATURES, function_sizes, functions, safe_name
-from softpinn.symbolic.spec import preset_path
+from softpinn.symbolic.model._functions import SIGNATURES, function_sizes, functions, safe_name
+from softpinn.symbolic.spec._spec import preset_path
 
 
 @pytest.mark.parametrize("name", ["task1", "task2", "task3", "task4", "task5"])

@@ -1,4 +1,4 @@
-"""softpinn import (symbolic/recorded.py, symbolic/dataimport.py, bridge/cli/data.py): a simulated
+"""softpinn import (symbolic/recorded/_csv.py, symbolic/recorded/_import.py, bridge/cli/data.py): a simulated
 data set written as CSV (configurations; tip orientation as quaternions and as roll-pitch-yaw)
 and imported back gives the same q, q̇ to the smoother's accuracy; every bad file is refused in
 one line naming the file, line and column, with exit status 2."""
@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
-from softpinn.learn.data import load_dataset
-from softpinn.symbolic import orientation as ori
-from softpinn.symbolic.datafile import read_dataset
-from softpinn.symbolic.dataimport import import_recordings
-from softpinn.symbolic.datasets import make_dataset
-from softpinn.symbolic.recorded import RecordingError
+from softpinn.learn._data import load_dataset
+from softpinn.symbolic.spec import _orientation as ori
+from softpinn.symbolic.simulation._datafile import read_dataset
+from softpinn.symbolic.recorded._import import import_recordings
+from softpinn.symbolic.simulation._datasets import make_dataset
+from softpinn.symbolic.recorded._csv import RecordingError
 
 
 @pytest.fixture(scope="module")

@@ -1,6 +1,6 @@
 """An arm of one's own: softpinn init writes a commented template spec that loads and simulates
-(symbolic/template.py); a spec without [data] simulates with defaults from its physics
-(symbolic/defaults.py) instead of identical trajectories from q = 0; and the whole path
+(symbolic/recorded/_template.py); a spec without [data] simulates with defaults from its physics
+(symbolic/simulation/_defaults.py) instead of identical trajectories from q = 0; and the whole path
 spec -> init -> simulate -> CSV -> import for a 3-segment arm."""
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
-from softpinn.learn.data import load_dataset
-from softpinn.symbolic.datafile import read_dataset
-from softpinn.symbolic.datasets import make_dataset, plan_dataset
-from softpinn.symbolic.datatable import DataError, data_config
-from softpinn.symbolic.defaults import physics_data_table
-from softpinn.symbolic.spec import load_spec, spec_from_dict, spec_from_toml
+from softpinn.learn._data import load_dataset
+from softpinn.symbolic.simulation._datafile import read_dataset
+from softpinn.symbolic.simulation._datasets import make_dataset, plan_dataset
+from softpinn.symbolic.simulation._datatable import DataError, data_config
+from softpinn.symbolic.simulation._defaults import physics_data_table
+from softpinn.symbolic.spec._spec import load_spec, spec_from_dict, spec_from_toml
 
 
 @pytest.fixture(autouse=True)

@@ -1,4 +1,4 @@
-"""learn.integrate: RK4 order, input holds, sub-steps, rollouts with variable dt and re-sets."""
+"""learn._integrate: RK4 order, input holds, sub-steps, rollouts with variable dt and re-sets."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
-from softpinn.learn.errors import UserError
-from softpinn.learn.integrate import rk4_step, rollout, step
-from softpinn.learn.models import LagrangianNet, ModelConfig
+from softpinn.errors import UserError
+from softpinn.learn._integrate import rk4_step, rollout, step
+from softpinn.learn._models import LagrangianNet, ModelConfig
 
 
 def analytic_lagrangian(n, m, M, K, D, A):

@@ -1,4 +1,4 @@
-"""Batched C kernels (softpinn.symbolic.kernel): equal to CasADi to 1e-12 for every instruction
+"""Batched C kernels (softpinn.symbolic.codegen._kernel): equal to CasADi to 1e-12 for every instruction
 they write (CasADi's C semantics: sign(0), if_else_zero with a NaN in the unused branch,
 comparisons as 1/0, non-finite constants), batches that are no multiple of the vector width,
 sparse and matrix outputs, the fallbacks (plain flags when the fast ones fail, None without a
@@ -10,9 +10,11 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import functions, kernel, load_spec
-from softpinn.symbolic.datasets import data_config, draw_trajectories
-from softpinn.symbolic.simulate import SimulationConfig, simulate
+from softpinn.symbolic import load_spec
+from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.codegen import _kernel as kernel
+from softpinn.symbolic.simulation._datasets import data_config, draw_trajectories
+from softpinn.symbolic.simulation._simulate import SimulationConfig, simulate
 
 
 @pytest.fixture(autouse=True)
@@ -129,9 +131,9 @@ def test_rk4_equals_casadis_rk4_on_two_threads():
 
 @pytest.mark.parametrize("integrator", ["rk4", "cvodes"])
 def test_simulate_with_compiled_functions_uses_kernels(tmp_path, integrator):
-    """symbolic.simulate: with compiled functions the RK4 steps and q̈, p, M run in kernels
+    """symbolic.simulation._simulate: with compiled functions the RK4 steps and q̈, p, M run in kernels
     (the same numbers as CasADi's path on the uncompiled functions, to rounding)."""
-    from softpinn.symbolic import codegen
+    from softpinn.symbolic.codegen import _codegen as codegen
 
     spec = load_spec("task1")
     raw = functions(spec)

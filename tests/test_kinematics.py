@@ -9,9 +9,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import kinematics as kin
-from softpinn.symbolic.eom import tip_wrench_matrix
-from softpinn.symbolic.spec import spec_from_dict
+from softpinn.symbolic.derivation import _kinematics as kin
+from softpinn.symbolic.derivation._eom import tip_wrench_matrix
+from softpinn.symbolic.spec._spec import spec_from_dict
 
 
 def make_spec(nseg=2, param="delta", actuation="generalized", adof=4, d=0.5):

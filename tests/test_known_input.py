@@ -15,9 +15,9 @@ from datagen import make_dataset, msd_matrices
 
 from softpinn.bridge.exact import jax_model
 from softpinn.bridge.exact.serialize import casadi_function, program_data, spec_known_input
-from softpinn.learn.errors import UserError
-from softpinn.learn.known import KnownMatrix, known_input_text
-from softpinn.learn.models import ModelConfig, make_model
+from softpinn.errors import UserError
+from softpinn.learn._known_input import KnownMatrix, known_input_text
+from softpinn.learn._models import ModelConfig, make_model
 
 
 @pytest.mark.parametrize("task", ["task3", "task4", "task5"])
@@ -133,7 +133,7 @@ def test_known_a_lagrangian_recovers_msd(tmp_path, capsys):
     """The forced mass-spring-damper (A = [0, 1]ᵀ): any P with P A = A and P M, P K, P B
     symmetric is the identity, so a known-A network's M, D, G are the true ones, no transform.
     Trained through the CLI (--known-input FILE.json), reloaded by load_run, exported."""
-    from softpinn.learn.rundir import load_run
+    from softpinn.learn._rundir import load_run
 
     data = make_dataset(tmp_path / "msd.npz", trajectories=4, duration=4.0, rate=20.0)
     M, K, B, A = msd_matrices()
@@ -175,7 +175,7 @@ def test_known_a_hamiltonian_eq10_on_momenta_recovers_msd(tmp_path, capsys):
     q̇ = M̂⁻¹(q) p at every sample, so with the known A a Hamiltonian network's M⁻¹, D and G
     are the true ones directly."""
     from softpinn.bridge.cli import main
-    from softpinn.learn.rundir import load_run
+    from softpinn.learn._rundir import load_run
 
     data = make_dataset(tmp_path / "msd.npz", trajectories=4, duration=4.0, rate=100.0)
     M, K, B, A = msd_matrices()
@@ -204,7 +204,7 @@ def test_known_a_hamiltonian_eq10_on_momenta_recovers_msd(tmp_path, capsys):
 
 
 def load_run_data(path):
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     return load_dataset(path)
 
@@ -215,8 +215,8 @@ def test_derive_programs_give_a_known_a_without_casadi(tmp_path, capsys):
     A(q) from one (task 3's A on mass-spring data of its n = 2, m = 1: the option's path, not
     a physical pairing); a program of another model is refused in one line."""
     from softpinn.bridge.cli import main
-    from softpinn.learn.program import ProgramFunction
-    from softpinn.symbolic.model import TrueModel
+    from softpinn.learn._sx_replay import ProgramFunction
+    from softpinn.symbolic.model._true_model import TrueModel
 
     jax.config.update("jax_enable_x64", True)
     eom = tmp_path / "eom"
@@ -262,7 +262,7 @@ def test_derive_programs_give_a_known_a_without_casadi(tmp_path, capsys):
 @pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian"])
 def test_force_space_errors_are_mass_weighted_acceleration_errors(kind):
     """accel_space 'force': ‖M̂(q) (q̈ - q̂̈)‖², the residual of eq. 4 with the labels' q̈."""
-    from softpinn.learn.losses import Pairs, accel_errors
+    from softpinn.learn._losses import Pairs, accel_errors
 
     cfg = ModelConfig(kind=kind, n=2, m=1, input_form="known", state_kind="velocity",
                       known_input=known_input_text(np.array([[0.0], [1.0]])))
@@ -289,7 +289,7 @@ def test_force_space_errors_are_mass_weighted_acceleration_errors(kind):
 def test_force_weights_even_out_the_inertial_forces():
     """force_weights: mean(s) / s_i, s_i the rms of the model's M̂ q̈, so w_i s_i is the same for
     every coordinate (and the weights average... to mean(s) times the mean of 1 / s)."""
-    from softpinn.learn.losses import _mass_times, force_weights
+    from softpinn.learn._losses import _mass_times, force_weights
 
     for kind in ("lagrangian", "hamiltonian"):
         cfg = ModelConfig(kind=kind, n=3, m=1, state_kind="velocity")
@@ -307,7 +307,7 @@ def test_force_weights_even_out_the_inertial_forces():
 
 
 def test_force_space_refusals():
-    from softpinn.learn.config import TrainConfig
+    from softpinn.learn._config import TrainConfig
 
     known = dict(input_form="known", known_input=known_input_text(np.array([[0.0], [1.0]])))
     lag = ModelConfig(kind="lagrangian", n=2, m=1, **known)
@@ -344,7 +344,7 @@ def test_known_a_hamiltonian_from_velocities_in_force_space_recovers_msd(tmp_pat
     (p = M̂ q̇ inside the loss, no momenta in the file) with the known A and eq. 10 in force
     space (‖M̂ (q̈ - q̂̈)‖², q̈ from differences of q̇) gets the true M⁻¹, D and G directly."""
     from softpinn.bridge.cli import main
-    from softpinn.learn.rundir import load_run
+    from softpinn.learn._rundir import load_run
 
     data = make_dataset(tmp_path / "msd.npz", trajectories=4, duration=4.0, rate=100.0)
     M, K, B, A = msd_matrices()
@@ -366,9 +366,9 @@ def test_known_a_hamiltonian_from_velocities_in_force_space_recovers_msd(tmp_pat
     # 1.9e-2, 1.7e-2; with A learned, velocity data leave M⁻¹ 56 % off: docs/velocity.md)
     assert max(errors.values()) < 6e-2, errors
     # a second pass weighted by the first's inertial forces (--accel-weights-from): the config
-    # holds the weights of learn.losses.force_weights, and a run starts from them
-    from softpinn.learn.data import difference_accelerations, load_dataset
-    from softpinn.learn.losses import force_weights
+    # holds the weights of learn._losses.force_weights, and a run starts from them
+    from softpinn.learn._data import difference_accelerations, load_dataset
+    from softpinn.learn._losses import force_weights
 
     second = ["train", str(data), "--model", "hamiltonian", "--momenta", "velocity",
               "--known-input", str(tmp_path / "A.json"), "--loss", "accel",

@@ -1,4 +1,4 @@
-"""learn.linalg: scatter-free Cholesky assembly and plain-jnp triangular solves vs numpy."""
+"""learn._linalg: scatter-free Cholesky assembly and plain-jnp triangular solves vs numpy."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.learn.linalg import (
+from softpinn.learn._linalg import (
     cho_inverse,
     cho_solve,
     cholesky,

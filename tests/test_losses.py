@@ -1,4 +1,4 @@
-"""learn.losses: eqs. 8-10 against hand computations, rollout loss, gradients, no retracing."""
+"""learn._losses: eqs. 8-10 against hand computations, rollout loss, gradients, no retracing."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import numpy as np
 import optax
 import pytest
 
-from softpinn.learn.errors import UserError
-from softpinn.learn.integrate import rollout, step
-from softpinn.learn.losses import (
+from softpinn.errors import UserError
+from softpinn.learn._integrate import rollout, step
+from softpinn.learn._losses import (
     Pairs,
     Windows,
     accel_loss,
@@ -20,7 +20,7 @@ from softpinn.learn.losses import (
     rollout_errors,
     rollout_loss,
 )
-from softpinn.learn.models import ModelConfig, make_model
+from softpinn.learn._models import ModelConfig, make_model
 
 SMALL = dict(mass=(8, 1), potential=(8, 1), damping=(4, 1), input=(4, 1), hidden=(8, 1))
 

@@ -39,7 +39,7 @@ def test_shapes_and_batch(tm):
 
 def test_unforced_undamped_energy_is_conserved():
     """RK4 on the ODE with D = 0: the energy drift falls with the step like h^4."""
-    from softpinn.symbolic.spec import load_spec, preset_path, spec_from_toml
+    from softpinn.symbolic.spec._spec import load_spec, preset_path, spec_from_toml
 
     text = preset_path("task4").read_text().replace("damping = [0.1, 0.1, 0.1]",
                                                     "damping = [0.0, 0.0, 0.0]")

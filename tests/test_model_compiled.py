@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic import TrueModel
-from softpinn.symbolic import model as model_mod
+from softpinn.symbolic.model import _true_model as model_mod
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +38,7 @@ def test_large_batches_run_compiled_and_agree(states, tmp_path, monkeypatch):
 
 
 def test_a_function_without_a_kernel_runs_casadis_c(states, tmp_path, monkeypatch):
-    from softpinn.symbolic import kernel
+    from softpinn.symbolic.codegen import _kernel as kernel
 
     monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path / "cache"))
 
@@ -63,7 +63,8 @@ def test_small_batches_and_single_states_stay_interpreted(states):
 
 
 def test_without_compiler_falls_back_with_a_warning(states, tmp_path, monkeypatch):
-    from softpinn.symbolic import codegen, kernel
+    from softpinn.symbolic.codegen import _codegen as codegen
+    from softpinn.symbolic.codegen import _kernel as kernel
 
     monkeypatch.setattr(codegen, "find_compiler", lambda compiler=None: None)
     monkeypatch.setattr(kernel, "find_compiler", lambda compiler=None: None)

@@ -1,4 +1,4 @@
-"""learn.models: structured vs Hessian eq. 6, analytic systems, eq. 7, configs, vmap, tracing."""
+"""learn._models: structured vs Hessian eq. 6, analytic systems, eq. 7, configs, vmap, tracing."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from known_fields import Field, MassField
 
-from softpinn.learn.errors import UserError
-from softpinn.learn.models import (
+from softpinn.errors import UserError
+from softpinn.learn._models import (
     BlackBoxNet,
     HamiltonianNet,
     LagrangianHessianNet,

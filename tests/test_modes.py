@@ -11,10 +11,10 @@ import pytest
 from known_fields import Field, MassField
 
 from softpinn.bridge.analysis.modes import format_modes, modes, true_jacobian
-from softpinn.bridge.errors import UserError
-from softpinn.learn.models import LagrangianNet, ModelConfig
-from softpinn.learn.nets import ZeroMatrix
-from softpinn.symbolic.model import TrueModel
+from softpinn.errors import UserError
+from softpinn.learn._models import LagrangianNet, ModelConfig
+from softpinn.learn._nets import ZeroMatrix
+from softpinn.symbolic.model._true_model import TrueModel
 
 jax.config.update("jax_enable_x64", True)
 

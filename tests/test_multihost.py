@@ -16,7 +16,7 @@ import numpy as np
 from datagen import make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn.train import load_run
+from softpinn.learn._train import load_run
 from softpinn.learn.xlaflags import with_fast_compile
 
 TRAIN = ["--model", "lagrangian", "--epochs", "3", "--batch-size", "64", "--width", "8",

@@ -1,4 +1,4 @@
-"""learn.nets: MLP linearisation, Cholesky fields (Figs. 2-3), potential and input fields."""
+"""learn._nets: MLP linearisation, Cholesky fields (Figs. 2-3), potential and input fields."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.learn.errors import UserError
-from softpinn.learn.nets import (
+from softpinn.errors import UserError
+from softpinn.learn._nets import (
     MLP,
     CholeskyField,
     ConstantCholesky,

@@ -1,5 +1,5 @@
-"""Tip orientation <-> bending of a one-segment PCC arm (symbolic/orientation.py), checked
-against the project's forward kinematics (symbolic/kinematics.py, eq. 13): q -> tip rotation ->
+"""Tip orientation <-> bending of a one-segment PCC arm (symbolic/spec/_orientation.py), checked
+against the project's forward kinematics (symbolic/derivation/_kinematics.py, eq. 13): q -> tip rotation ->
 quaternion or roll-pitch-yaw -> q to 1e-9, at random q and near the straight arm."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import kinematics as kin
-from softpinn.symbolic import orientation as ori
+from softpinn.symbolic.derivation import _kinematics as kin
+from softpinn.symbolic.spec import _orientation as ori
 
 
 def fk_rotation(q, param: str, d: float) -> np.ndarray:

@@ -8,11 +8,11 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.errors import UserError
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
 from softpinn.learn.plots import written_by_softpinn
-from softpinn.learn.predict import predict
-from softpinn.learn.train import train
+from softpinn.learn._predict import predict
+from softpinn.learn._train import train
 
 
 @pytest.fixture(scope="module")

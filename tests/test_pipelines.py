@@ -18,7 +18,7 @@ from nbclient import NotebookClient
 
 from softpinn.bridge.cli import main
 from softpinn.bridge.tasks import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
-from softpinn.symbolic.spec import load_spec
+from softpinn.symbolic.spec._spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -125,9 +125,9 @@ def check_quick_pipeline(task, quick_runs):
 
 def _errors_are_reported_at_lambda_one(result, text):
     """Task 3's Hamiltonian network trains with λ = 0.1; its reported errors use λ = 1."""
-    from softpinn.learn.data import load_dataset
-    from softpinn.learn.predict import evaluate
-    from softpinn.learn.train import load_run
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._predict import evaluate
+    from softpinn.learn._train import load_run
 
     entry = result.results["variants"]["main"]["models"]["hamiltonian"]
     assert entry["train"]["config"]["loss_weight"] == 0.1
@@ -496,7 +496,7 @@ def _interrupted_model():
 
 
 def _failing_model():
-    from softpinn.bridge.errors import UserError
+    from softpinn.errors import UserError
 
     raise UserError("task.toml: field 'x': expected a number")
 
@@ -527,7 +527,7 @@ def test_jobs_after_work_waits_for_its_models(tmp_path):
 def test_jobs_workers_errors_and_interruptions_reach_the_caller():
     """A worker's user error is the caller's (one line at the command line), and a worker
     interrupted first (Ctrl-C reaches every process) stops the run as Ctrl-C does."""
-    from softpinn.bridge.errors import UserError
+    from softpinn.errors import UserError
     from softpinn.bridge.tasks.parallel import run_models
 
     lines = []

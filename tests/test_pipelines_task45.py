@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from test_pipelines import NOTEBOOKS, check_quick_pipeline, run_notebook
 
-from softpinn.symbolic.spec import load_spec
+from softpinn.symbolic.spec._spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
 
@@ -30,7 +30,7 @@ def test_a_report_draws_its_variants_figures_in_processes(quick_runs, tmp_path):
     own (drawn in one)."""
     import os
 
-    from softpinn.bridge.report.figsave import draft_figures
+    from softpinn.bridge.figures.figsave import draft_figures
     from softpinn.bridge.report.task import _all_variant_figures
 
     result = quick_runs("task5")

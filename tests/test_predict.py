@@ -1,4 +1,4 @@
-"""Prediction (learn/predict.py) against an exact analytic model of eq. 25: the rollout error is
+"""Prediction (learn/_predict.py) against an exact analytic model of eq. 25: the rollout error is
 only RK4's discretisation error, falls like dt^4 with a finer step, and a perturbed model's
 error shrinks when the state is re-set to the truth."""
 
@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, msd_matrices, simulate, write
 
-from softpinn.learn.data import load_dataset, trajectories
-from softpinn.learn.errors import UserError
-from softpinn.learn.models import DynamicsModel, ModelConfig
-from softpinn.learn.predict import _reset_mask, evaluate, predict, rollouts
-from softpinn.learn.train import train
+from softpinn.learn._data import load_dataset, trajectories
+from softpinn.errors import UserError
+from softpinn.learn._models import DynamicsModel, ModelConfig
+from softpinn.learn._predict import _reset_mask, evaluate, predict, rollouts
+from softpinn.learn._train import train
 
 
 class ExactMSD(DynamicsModel):
@@ -106,7 +106,7 @@ def test_chunked_rollouts_and_errors_equal_one_call(free, monkeypatch):
     # included) and pairs are evaluated a chunk at a time: the same numbers as in one call
     import sys
 
-    predict_mod = sys.modules[evaluate.__module__]  # learn.predict (the name is a function)
+    predict_mod = sys.modules[evaluate.__module__]  # learn._predict (the name is a function)
     wrong = ExactMSD(CFG, k_scale=1.2)
     one = evaluate(wrong, free, [0, 1, 2], horizon=4.0, reset_every=0.7)
     other = rollouts(wrong, trajectories(free, [0, 1]), horizon=3.0, dt=0.03)
@@ -155,13 +155,13 @@ def test_predict_on_run_dir_and_plot(msd, tmp_path):
     for key in ("one_step_error", "rollout_error_mean", "rollout_error_std", "horizon"):
         assert key in out
     # the one-step error equals the training loss of the saved (best) model
-    from softpinn.learn.train import load_run
+    from softpinn.learn._train import load_run
 
     run = load_run(tmp_path / "run")
     assert out["one_step_error"]["mean"] == pytest.approx(
         min(
             r["test_loss"]
-            for r in __import__("softpinn.learn.checkpoint", fromlist=["x"]).read_history(
+            for r in __import__("softpinn.learn._checkpoint", fromlist=["x"]).read_history(
                 tmp_path / "run" / "history.csv"
             )
         ),

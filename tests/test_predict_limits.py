@@ -11,9 +11,9 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn.errors import UserError
-from softpinn.learn.predict import predict
-from softpinn.learn.train import train
+from softpinn.errors import UserError
+from softpinn.learn._predict import predict
+from softpinn.learn._train import train
 
 
 @pytest.fixture(scope="module")
@@ -44,7 +44,7 @@ def test_one_line_errors(run, flags, message, capsys):
 
 def test_tiny_dt_is_refused_before_allocating(run, monkeypatch):
     out, data = run
-    pr = importlib.import_module("softpinn.learn.predict")
+    pr = importlib.import_module("softpinn.learn._predict")
     monkeypatch.setattr(pr, "_interp_rows", lambda *a: pytest.fail("allocated the grid"))
     with pytest.raises(UserError, match=r"about .* GiB, the limit is 2 GiB"):
         predict(out, data, horizon=1.0, dt=1e-9)

@@ -1,4 +1,4 @@
-"""An exact model's functions replayed without CasADi (learn/program.py): the data written by
+"""An exact model's functions replayed without CasADi (learn/_sx_replay.py): the data written by
 bridge.exact.serialize, run by ProgramFunction in JAX, equal CasADi's compiled values to 1e-12
 (theta = 0 of the delta parameterization included), batched, in float32, with several inputs
 and outputs; bad data and bad calls get one-line errors."""
@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.exact.serialize import function_data
-from softpinn.learn.errors import UserError
-from softpinn.learn.program import ProgramFunction
+from softpinn.errors import UserError
+from softpinn.learn._sx_replay import ProgramFunction
 from softpinn.symbolic import TrueModel
 
 jax.config.update("jax_enable_x64", True)

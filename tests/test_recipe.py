@@ -9,11 +9,11 @@ import math
 import pytest
 
 from softpinn.bridge.tasks import ReproduceConfig, make_plan, variant_model
-from softpinn.learn.models import ModelConfig
-from softpinn.learn.train import TrainConfig
+from softpinn.learn._models import ModelConfig
+from softpinn.learn._train import TrainConfig
 from softpinn.symbolic import SpecError, load_spec
-from softpinn.symbolic.recipe import BUDGET_KEYS, LOSS_KEYS, MODEL_KEYS, Recipe
-from softpinn.symbolic.spec import preset_path
+from softpinn.symbolic.spec._recipe import BUDGET_KEYS, LOSS_KEYS, MODEL_KEYS, Recipe
+from softpinn.symbolic.spec._spec import preset_path
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 
@@ -183,11 +183,11 @@ test_with = "pair"
         raise RuntimeError("stop")
 
     # the module (softpinn.learn's attribute of that name is the function)
-    monkeypatch.setattr(importlib.import_module("softpinn.learn.train"), "train", fake_train)
+    monkeypatch.setattr(importlib.import_module("softpinn.learn._train"), "train", fake_train)
     rng = np.random.default_rng(0)
     fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
                            traj=np.repeat([0, 1], 10))
-    monkeypatch.setattr("softpinn.learn.data.load_dataset", lambda path: fake)
+    monkeypatch.setattr("softpinn.learn._data.load_dataset", lambda path: fake)
     files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
     text = spec_known_input(spec)[0]
     for kind in ("hamiltonian", "lagrangian"):
@@ -223,11 +223,11 @@ def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
         seen["tc"], seen["resume"] = tc, kw.get("resume")
         raise RuntimeError("stop")
 
-    monkeypatch.setattr(importlib.import_module("softpinn.learn.train"), "train", fake_train)
+    monkeypatch.setattr(importlib.import_module("softpinn.learn._train"), "train", fake_train)
     rng = np.random.default_rng(0)
     fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
                            traj=np.repeat([0, 1], 10), meta={}, path="x.npz")  # simulated p
-    monkeypatch.setattr("softpinn.learn.data.load_dataset", lambda path: fake)
+    monkeypatch.setattr("softpinn.learn._data.load_dataset", lambda path: fake)
     files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
 
     def stage():

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.bridge.report.rollouts import (
+from softpinn.bridge.figures.rollouts import (
     diverged_at,
     finite_percentile,
     finite_points,
@@ -81,7 +81,7 @@ def test_units_and_finite_points():
 
 
 def test_error_against_horizon_with_diverged_trajectories(tmp_path):
-    from softpinn.bridge.report.rollouts import horizon_figure
+    from softpinn.bridge.figures.rollouts import horizon_figure
 
     t = np.linspace(0.0, 2.0, 100)
     good = 1e-4 * np.exp(t)[None, :] * np.array([[1.0], [2.0], [3.0]])
@@ -143,7 +143,7 @@ def test_a_quick_run_draws_drafts_and_a_full_run_print_copies(tmp_path):
     outside, a 300 dpi PNG and its vector PDF."""
     from PIL import Image
 
-    from softpinn.bridge.report.figsave import DPI, DRAFT_DPI, draft_figures, is_draft
+    from softpinn.bridge.figures.figsave import DPI, DRAFT_DPI, draft_figures, is_draft
 
     t, q = _truth(n=2)
     kw = dict(names=["theta1", "dL1"], units=["rad", "m"], title="drafts")
@@ -168,7 +168,7 @@ def test_a_figure_larger_than_a_page_is_written_within_the_pixel_cap(tmp_path):
     from matplotlib.figure import Figure
     from PIL import Image
 
-    from softpinn.bridge.report.figsave import DPI, DRAFT_DPI, MAX_PIXELS, figure_dpi
+    from softpinn.bridge.figures.figsave import DPI, DRAFT_DPI, MAX_PIXELS, figure_dpi
 
     assert figure_dpi(300, Figure(figsize=(7.0, 5.0))) == DPI
     big = Figure(figsize=(16.6, 13.9))

@@ -10,9 +10,9 @@ import pytest
 
 from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.analysis.transforms import fit_joint, fit_smooth, fit_transform
-from softpinn.bridge.errors import UserError
-from softpinn.bridge.report.paper import load_paper_tables, table_iii_comparison
-from softpinn.bridge.report.tables import (
+from softpinn.errors import UserError
+from softpinn.bridge.figures.paper import load_paper_tables, table_iii_comparison
+from softpinn.bridge.figures.tables import (
     format_mean_std,
     format_number,
     matrix_table,
@@ -198,7 +198,7 @@ def test_block_tables_keep_each_q_on_one_markdown_row():
 
 def test_table_iii_comparison_puts_paper_numbers_in():
     paper = load_paper_tables()
-    shipped = Path(__file__).parents[1] / "bridge" / "report" / "paper_tables.json"
+    shipped = Path(__file__).parents[1] / "bridge" / "figures" / "paper_tables.json"
     ref = json.loads(shipped.read_text())
     assert paper == ref
     ours = {
@@ -286,7 +286,7 @@ def test_rollouts_that_ran_away_are_counted_beside_inf():
     """A mean of inf says a rollout ran away; the report says how many, and the others' error."""
     import math
 
-    from softpinn.bridge.report.task_figures import _ran_away_text
+    from softpinn.bridge.figures.task import _ran_away_text
     from softpinn.bridge.tasks.stages import error_stats
 
     s = error_stats([np.array([0.1, 0.3, math.inf, 0.2])])
@@ -310,7 +310,7 @@ def test_rollouts_that_ran_away_are_counted_beside_inf():
 
 
 def test_percent_text_reads_at_a_glance():
-    from softpinn.bridge.report.tables import percent_text
+    from softpinn.bridge.figures.tables import percent_text
 
     assert percent_text(0.21) == "21 %"
     assert percent_text(0.0035) == "0.35 %"

@@ -8,9 +8,9 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.errors import UserError
-from softpinn.learn.train import train
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
+from softpinn.learn._train import train
 
 TRAIN = [
     "--model", "blackbox", "--hidden", "16", "2", "--batch-size", "64", "--lr", "1e-2",
@@ -94,7 +94,7 @@ def test_resume_keeps_the_split_the_run_recorded(data, tmp_path, monkeypatch):
     does not draw them again (a default that changed since must not move them)."""
     import importlib
 
-    train_module = importlib.import_module("softpinn.learn.train")  # the module, not train()
+    train_module = importlib.import_module("softpinn.learn._train")  # the module, not train()
 
     out = tmp_path / "run"
     train(data, blackbox_train_config(epochs=3), out)

@@ -1,4 +1,4 @@
-"""The simulated IMU of a spec's [sensor] table (symbolic/sensor.py): the table is validated when
+"""The simulated IMU of a spec's [sensor] table (symbolic/spec/_sensor.py): the table is validated when
 the spec loads, the recordings sample at the sensor's rate, their noise and bias have the stated
 statistics, a seed reproduces them, and ``softpinn import`` reads them back."""
 
@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.symbolic import orientation as ori
-from softpinn.symbolic.dataimport import import_recordings
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.sensor import (
+from softpinn.symbolic.spec import _orientation as ori
+from softpinn.symbolic.recorded._import import import_recordings
+from softpinn.errors import UserError
+from softpinn.symbolic.spec._sensor import (
     SensorConfig,
     SensorError,
     parse_sensor,
@@ -18,7 +18,7 @@ from softpinn.symbolic.sensor import (
     sensor_config,
     write_csv,
 )
-from softpinn.symbolic.spec import SpecError, load_spec, spec_from_toml
+from softpinn.symbolic.spec._spec import SpecError, load_spec, spec_from_toml
 
 ARM = """
 name = "arm"

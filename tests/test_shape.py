@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.bridge.report.shape import draw_configurations, shape_animation, shape_figure
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.shape import backbone_points
-from softpinn.symbolic.spec import load_spec
+from softpinn.bridge.figures.arm import draw_configurations, shape_animation, shape_figure
+from softpinn.errors import UserError
+from softpinn.symbolic.derivation._shape import backbone_points
+from softpinn.symbolic.spec._spec import load_spec
 
 
 @pytest.mark.parametrize("task", ["task3", "task4", "task5"])

@@ -8,8 +8,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.signals import (
+from softpinn.errors import UserError
+from softpinn.symbolic.simulation._signals import (
     KINDS,
     Chirp,
     Multisine,

@@ -6,17 +6,17 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic import codegen
-from softpinn.symbolic.functions import functions
-from softpinn.symbolic.signals import Sinusoid, Step, Zero
-from softpinn.symbolic.simulate import (
+from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.simulation._signals import Sinusoid, Step, Zero
+from softpinn.symbolic.simulation._simulate import (
     SimulationConfig,
     SimulationError,
     SingularityError,
     batched,
     simulate,
 )
-from softpinn.symbolic.spec import spec_from_dict
+from softpinn.symbolic.spec._spec import spec_from_dict
 
 
 @pytest.fixture(scope="module")

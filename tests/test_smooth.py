@@ -8,7 +8,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from softpinn.symbolic.smooth import SWITCH, cosc, sinc
+from softpinn.symbolic.derivation._smooth import SWITCH, cosc, sinc
 
 s = ca.SX.sym("s")
 F = ca.Function("f", [s], [ca.vertcat(sinc(s), cosc(s))])
@@ -61,7 +61,7 @@ def test_jet_values_and_derivatives_match_high_precision():
     """The jet's closed forms and series (cosc, sinc and two s-derivatives) against mpmath."""
     import mpmath
 
-    from softpinn.symbolic.smooth import JET_SWITCH, Jet
+    from softpinn.symbolic.derivation._smooth import JET_SWITCH, Jet
 
     jet = Jet()
     s = ca.SX.sym("s")

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.spec import ModelSpec, SpecError, list_presets, load_spec, spec_from_toml
+from softpinn.errors import UserError
+from softpinn.symbolic.spec._spec import ModelSpec, SpecError, list_presets, load_spec, spec_from_toml
 
 GOOD = """
 name = "arm"

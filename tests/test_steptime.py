@@ -1,10 +1,10 @@
-"""The per-step work count of learn.steptime (XLA's FLOP count of a compiled program)."""
+"""The per-step work count of learn._steptime (XLA's FLOP count of a compiled program)."""
 
 import jax
 import jax.numpy as jnp
 import pytest
 
-from softpinn.learn.steptime import step_gflop
+from softpinn.learn._steptime import step_gflop
 
 
 def test_step_gflop_counts_a_matrix_product():

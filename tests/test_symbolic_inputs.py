@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
-from softpinn.symbolic import TrueModel, UserError, codegen, outputs
-from softpinn.symbolic.datasets import plan_dataset
-from softpinn.symbolic.functions import functions
-from softpinn.symbolic.spec import MAX_COORDINATES, SpecError, load_spec
+from softpinn.symbolic import TrueModel, UserError
+from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic import _outputs as outputs
+from softpinn.symbolic.simulation._datasets import plan_dataset
+from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.spec._spec import MAX_COORDINATES, SpecError, load_spec
 
 
 @pytest.fixture(autouse=True)
@@ -214,7 +216,7 @@ def test_spec_files_that_cannot_be_read(tmp_path):
 
 def test_the_coordinate_limit_lets_the_largest_supported_specs_load():
     seg = "[[segment]]\nlength = 0.2\nmass = 0.3\nstiffness = [1.0, 1.0, 1.0]\n"
-    from softpinn.symbolic.spec import spec_from_toml
+    from softpinn.symbolic.spec._spec import spec_from_toml
 
     spec = spec_from_toml('kind = "spatial-pcc"\n' + seg * (MAX_COORDINATES // 3), source="x")
     assert spec.n == MAX_COORDINATES

@@ -1,4 +1,4 @@
-"""Training (learn/train.py): physics nets learn the analytic systems, ensembles equal single
+"""Training (learn/_train.py): physics nets learn the analytic systems, ensembles equal single
 runs, resume equals an uninterrupted run, interruption and divergence leave loadable runs."""
 
 from __future__ import annotations
@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, tiny_model_config
 
-from softpinn.learn import checkpoint as ckpt
-from softpinn.learn.data import load_dataset
-from softpinn.learn.errors import UserError
-from softpinn.learn.models import make_model
-from softpinn.learn.predict import evaluate
-from softpinn.learn.programs import PROGRAMS
-from softpinn.learn.train import (
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.learn._data import load_dataset
+from softpinn.errors import UserError
+from softpinn.learn._models import make_model
+from softpinn.learn._predict import evaluate
+from softpinn.learn._programs import PROGRAMS
+from softpinn.learn._train import (
     TrainConfig,
     TrainingDiverged,
     load_ensemble,
@@ -267,10 +267,10 @@ def test_test_samples_evaluates_a_seeded_subset_of_the_held_out_pairs(msd, tmp_p
     # the test loss on a subset: the metrics count it, and the best test loss is the mean eq. 8
     # error of the best model on exactly those pairs (make_pairs' draw with the split seed); a
     # subset at least as large as the test set is the whole test set
-    from softpinn.learn.data import make_pairs
-    from softpinn.learn.losses import Pairs
-    from softpinn.learn.predict import one_step_errors
-    from softpinn.learn.splits import split_trajectories
+    from softpinn.learn._data import make_pairs
+    from softpinn.learn._losses import Pairs
+    from softpinn.learn._predict import one_step_errors
+    from softpinn.learn._splits import split_trajectories
 
     base = dict(epochs=2, test_trajectories=[3, 4], **F32)
     full = train(msd, blackbox_train_config(**base), tmp_path / "full")
@@ -358,10 +358,10 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
 def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
     # test_with "pair": eq. 10 trains, the held-out pairs are scored by eq. 8 (one RK4 step):
     # the same training, another test column, and the best model is the one that predicts best
-    from softpinn.learn.data import make_pairs
-    from softpinn.learn.losses import pair_loss
-    from softpinn.learn.programs import to_pairs
-    from softpinn.learn.splits import split_trajectories
+    from softpinn.learn._data import make_pairs
+    from softpinn.learn._losses import pair_loss
+    from softpinn.learn._programs import to_pairs
+    from softpinn.learn._splits import split_trajectories
 
     kw = dict(loss="accel", lr=3e-2, input_hold="linear", checkpoint_every=4)
     plain = train(msd, blackbox_train_config(**kw), tmp_path / "a").members[0]
@@ -387,7 +387,7 @@ def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
 def test_lbfgs_compiles_once(msd, tmp_path):
     # its chunks are one compiled program: the initial state's weak types used to make the
     # second chunk compile it again (16-28 s of every task 4 L-BFGS finish)
-    from softpinn.learn.programs import ProgramCache
+    from softpinn.learn._programs import ProgramCache
 
     cache = ProgramCache()
     train(msd, blackbox_train_config(epochs=1, lbfgs_steps=30), tmp_path / "r", programs=cache)

@@ -20,7 +20,7 @@ from softpinn.bridge.analysis.transforms import (
     fit_transform,
     make_basis,
 )
-from softpinn.bridge.errors import UserError
+from softpinn.errors import UserError
 
 N_DOF = 3
 

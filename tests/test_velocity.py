@@ -1,4 +1,4 @@
-"""Hamiltonian networks trained on velocity data (learn/velocity.py, issue 18 part 3): the map
+"""Hamiltonian networks trained on velocity data (learn/_velocity.py, issue 18 part 3): the map
 p = M̂ q̇ -> RK4 step of eq. 7 -> q̇ = M̂⁻¹ p against the Lagrangian form of the same known system,
 the scale the velocities cannot see, training on a file without momenta, and bad input."""
 
@@ -14,10 +14,10 @@ import pytest
 from datagen import make_dataset, simulate, tiny_model_config, write
 from known_fields import Field, MassField
 
-from softpinn.learn.errors import UserError
-from softpinn.learn.integrate import step as _step
-from softpinn.learn.models import HamiltonianNet, LagrangianNet, ModelConfig
-from softpinn.learn.velocity import (
+from softpinn.errors import UserError
+from softpinn.learn._integrate import step as _step
+from softpinn.learn._models import HamiltonianNet, LagrangianNet, ModelConfig
+from softpinn.learn._velocity import (
     measured_momenta,
     momenta_from_velocities,
     resolve_momenta,
@@ -97,8 +97,8 @@ def _no_momenta_file(path, **kw):
 
 
 def test_momenta_choice_and_refusals(tmp_path):
-    from softpinn.learn.data import load_dataset
-    from softpinn.learn.train import TrainConfig
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._train import TrainConfig
 
     with_p = load_dataset(make_dataset(tmp_path / "p.npz", trajectories=2, duration=1.0))
     no_p = load_dataset(_no_momenta_file(tmp_path / "nop.npz", trajectories=2, duration=1.0))
@@ -151,9 +151,9 @@ def test_velocity_trained_hamiltonian_on_a_file_without_momenta(tmp_path):
     off the true one even after the best scale c (c = 2.1-2.2), and was 96 % off after 100
     epochs and 76 % after 200 more L-BFGS iterations (docs/velocity.md: the transforms P(q)
     velocity data leave)."""
-    from softpinn.learn.data import load_dataset
-    from softpinn.learn.predict import predict
-    from softpinn.learn.train import TrainConfig, load_run, train
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._predict import predict
+    from softpinn.learn._train import TrainConfig, load_run, train
 
     path = _no_momenta_file(tmp_path / "msd.npz", trajectories=5, duration=6.0, rate=20.0)
     cfg = TrainConfig(model=tiny_model_config("hamiltonian", mass=(16, 1), potential=(16, 1),

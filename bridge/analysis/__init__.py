@@ -4,7 +4,7 @@ V-IX), force terms and accelerations along the data (:mod:`.forces`), linearised
 (:mod:`.modes`), one-step floors (:mod:`.floors`), and :func:`analyze`, which runs them all for
 one trained run (:mod:`.compare`), and the files it writes (:mod:`.writer`)."""
 
-from .compare import (
+from softpinn.bridge.analysis.compare import (
     AnalysisResult,
     analysis_q,
     analyze,
@@ -12,7 +12,7 @@ from .compare import (
     sample_q,
     true_matrices,
 )
-from .writer import summary_numbers, write_report
+from softpinn.bridge.report.analysis import summary_numbers, write_report
 
 __all__ = [
     "AnalysisResult",

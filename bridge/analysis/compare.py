@@ -1,5 +1,5 @@
 """The matrix-equivalence analysis end to end: evaluate the true model (CasADi, via
-``symbolic.model.TrueModel``) and a learned model (JAX, ``model.matrices`` under ``jax.vmap``)
+``symbolic.model._true_model.TrueModel``) and a learned model (JAX, ``model.matrices`` under ``jax.vmap``)
 at the same batch of q, run the fits of :mod:`bridge.transforms`, and compare the force terms
 along data samples (:mod:`.forces`) and what those show of the inertia (:mod:`.excitation`).
 
@@ -16,11 +16,11 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
-from .excitation import sample_share
-from .forces import ForceComparison, compare_forces
-from .sweeps import Sweeps, compute_sweeps
-from .transforms import (
+from softpinn.errors import UserError
+from softpinn.bridge.analysis.excitation import sample_share
+from softpinn.bridge.analysis.forces import ForceComparison, compare_forces
+from softpinn.bridge.analysis.sweeps import Sweeps, compute_sweeps
+from softpinn.bridge.analysis.transforms import (
     MATRICES,
     TRANSFORMS,
     MatrixStack,

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 __all__ = ["WEAK", "data_share", "inertial_share", "markdown_lines", "mostly", "sample_share",
            "weak_directions"]
@@ -81,7 +81,7 @@ def data_share(true_model, data, trajectories=None, *, count: int = 2000,
     """:func:`inertial_share` at up to ``count`` samples drawn (seeded) from the given
     trajectories of a data set (None: all; :func:`bridge.analysis.forces.data_samples`), and
     the number of samples drawn."""
-    from .forces import data_samples
+    from softpinn.bridge.analysis.forces import data_samples
 
     q, qd, u, _ = data_samples(data, trajectories, count=count, seed=seed)
     return inertial_share(true_model, q, qd, u), len(q)

@@ -45,8 +45,8 @@ def integration_floor(
 ) -> np.ndarray:
     """Per-pair one-step errors (eqs. 8-9) of the true model on ``pairs``.
 
-    ``pairs``: a :class:`learn.data.PairData` (x0, u0, u1, dt, x1) in the given ``state`` form.
-    The step mirrors :func:`learn.integrate.step`: ``substeps`` RK4 steps of dt / substeps,
+    ``pairs``: a :class:`learn._data.PairData` (x0, u0, u1, dt, x1) in the given ``state`` form.
+    The step mirrors :func:`learn._integrate.step`: ``substeps`` RK4 steps of dt / substeps,
     the input u0 throughout ("constant") or u0 + (u1 - u0) s / dt ("linear").
     """
     if not (isinstance(substeps, int) and substeps >= 1):

@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
-from .matrices import MatrixStack, check_pair
+from softpinn.errors import UserError
+from softpinn.bridge.analysis.matrices import MatrixStack, check_pair
 
 #: The force terms in report order; ``net = A u − G − D q̇``.
 TERMS = ("G", "D_qd", "A_u", "net")
@@ -222,7 +222,7 @@ def data_samples(
     data: Any, trajectories: Any = None, *, count: int = 2000, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Up to ``count`` samples (q, q̇, u) drawn without replacement (seeded) from the given
-    trajectories of a :class:`learn.data.Dataset` (None: all); returns them and a meta dict."""
+    trajectories of a :class:`learn._data.Dataset` (None: all); returns them and a meta dict."""
     if count < 1:
         raise UserError(f"samples: expected a positive count, got {count}")
     ids = np.unique(data.traj) if trajectories is None else np.asarray(trajectories, int)

@@ -3,7 +3,7 @@
 :class:`MatrixStack` holds any of ``M``, ``M_inv``, ``D`` (N, n, n), ``G`` (N, n) and
 ``A`` (N, n, m) at the same N configurations q; the helpers check that two stacks (true and
 learned) and a q batch fit together, choose the matrices both sides carry and weigh them for
-the joint fits of :mod:`bridge.transforms`. Mistakes raise :class:`bridge.errors.UserError`
+the joint fits of :mod:`bridge.transforms`. Mistakes raise :class:`errors.UserError`
 with the field, the expected and the received value. numpy only.
 """
 
@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 #: Order of the blocks in the joint equation ``P [M^ D^ A^ G^] ~= [M D A G]``.
 BLOCKS = ("M", "D", "A", "G")

@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import UserError
-from .floors import true_vector_field
+from softpinn.errors import UserError
+from softpinn.bridge.analysis.floors import true_vector_field
 
 __all__ = ["format_modes", "learned_jacobian", "modes", "rest_state", "true_jacobian"]
 
@@ -39,7 +39,7 @@ def true_jacobian(true_model, x, u, *, state: str = "velocity", h: float = 1e-6)
 
 
 def learned_jacobian(model, x, u) -> np.ndarray:
-    """∂f/∂x (2n, 2n) of a learned model (``learn.models``) at one state, by forward-mode AD."""
+    """∂f/∂x (2n, 2n) of a learned model (``learn._models``) at one state, by forward-mode AD."""
     import jax.numpy as jnp
 
     dtype = jnp.dtype(model.config.dtype)

@@ -9,13 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UserError
-from .matrices import (
+from softpinn.errors import UserError
+from softpinn.bridge.analysis.matrices import (
     block_weights,
     stacked_blocks,
     subset,
 )
-from .transform_result import (
+from softpinn.bridge.analysis.transform_result import (
     BASES,
     Status,
     TransformResult,

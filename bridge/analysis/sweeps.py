@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .matrices import MatrixStack
+from softpinn.bridge.analysis.matrices import MatrixStack
 
 #: Points along each sweep, and the most coordinates swept (those the data move most).
 POINTS = 41

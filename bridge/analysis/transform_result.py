@@ -11,8 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import to_jsonable
-from .matrices import (
+from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.analysis.matrices import (
     MatrixStack,
     as_stack,
     check_pair,

@@ -34,8 +34,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ..errors import UserError
-from .matrices import (
+from softpinn.errors import UserError
+from softpinn.bridge.analysis.matrices import (
     BLOCKS,
     MATRICES,
     WEIGHTINGS,
@@ -46,8 +46,8 @@ from .matrices import (
     common_blocks,
     stacked_blocks,
 )
-from .smooth_fit import Basis, fit_smooth, make_basis, split_train_heldout
-from .transform_result import (
+from softpinn.bridge.analysis.smooth_fit import Basis, fit_smooth, make_basis, split_train_heldout
+from softpinn.bridge.analysis.transform_result import (
     BASES,
     TRANSFORMS,
     Status,

@@ -5,9 +5,9 @@ Two measurements (issue 18, part 1):
 (a) **Per step.** One jitted training step (pair loss of eq. 8/9 through one RK4 step, its
     gradient, an AdamW update) of the structured Lagrangian network (eq. 6 by a JVP, one VJP
     and Cholesky solves, with the first layers of M, V, D, A fused into one product,
-    :class:`softpinn.learn.models.LagrangianNet`), the literal Hessian form, the Hamiltonian
+    :class:`softpinn.learn._models.LagrangianNet`), the literal Hessian form, the Hamiltonian
     network (eq. 7) and the black box, timed side by side in one process
-    (:mod:`softpinn.learn.steptime`, the code of ``benchmarks/bench_learn.py``). Targets: the
+    (:mod:`softpinn.learn._steptime`, the code of ``benchmarks/bench_learn.py``). Targets: the
     Hessian form's step ≥ 4x the structured one's at n = 6 and ≥ 8x at n = 12 (float64).
 (b) **Time to a test loss on task 4.** Today's recipe (the pair loss of eq. 8 from a fresh
     initialisation, the recipe's epochs, learning rate and L-BFGS finish) against the fast
@@ -42,8 +42,8 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import to_jsonable
-from ..report.figsave import figure_dpi
+from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.figures.figsave import figure_dpi
 
 #: Issue 18's targets: Hessian / structured step time per n, and today / fast time to loss.
 STEP_TARGETS = {6: 4.0, 12: 8.0}
@@ -95,7 +95,7 @@ def _load() -> str:
 
 
 def _steps(form: str, log) -> dict[str, Any]:
-    from ...learn.steptime import time_train_steps
+    from softpinn.learn._steptime import time_train_steps
 
     s = STEPS[form]
     out: dict[str, Any] = {"batch": s["batch"], "reps": s["reps"], "dtype": "float64",
@@ -113,7 +113,7 @@ def _steps(form: str, log) -> dict[str, Any]:
 
 def _flop_ratios(rows: dict[str, dict]) -> dict[str, float | None]:
     """Each kind's floating-point operations per step over the structured step's (XLA's count,
-    :func:`softpinn.learn.steptime.step_gflop`): the time ratio a kind would show if both ran
+    :func:`softpinn.learn._steptime.step_gflop`): the time ratio a kind would show if both ran
     at the same speed per operation (None where the backend gives no count)."""
     base = rows["lagrangian"].get("gflop")
     return {k: (None if not base or r.get("gflop") is None else r["gflop"] / base)
@@ -125,14 +125,14 @@ def _flop_ratios(rows: dict[str, dict]) -> dict[str, float | None]:
 
 def paper_level() -> float:
     """The paper's task 4 test loss of the Lagrangian network (Table III): the issue's level."""
-    from ..report.paper import load_paper_tables
+    from softpinn.bridge.figures.paper import load_paper_tables
 
     return float(load_paper_tables()["table_III"][TASK]["physics"]["test_error"]["mean"])
 
 
 def _plan(quick: bool):
-    from ...symbolic.spec import load_spec
-    from ..tasks.plan import ReproduceConfig, make_plan
+    from softpinn.symbolic.spec._spec import load_spec
+    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(TASK)
     plan = make_plan(spec, ReproduceConfig(task=TASK, quick=quick, analysis_points=40))
@@ -162,9 +162,9 @@ def _history(run: str) -> list[dict[str, float]]:
 
 def _train(spec, plan, files, folder: Path, progress, *, loss: str, budget: dict[str, Any],
            target: float | None = None, init: str | None = None) -> dict[str, Any]:
-    from ...learn.data import load_dataset
-    from ...learn.train import TrainConfig, train
-    from ..tasks.stages import _model_config
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._train import TrainConfig, train
+    from softpinn.bridge.tasks.stages import _model_config
 
     f = files["physics"]
     m = plan.models["lagrangian"]
@@ -204,7 +204,7 @@ def _time_to(history, level: float, offset: float = 0.0) -> float | None:
 
 
 def _time_to_loss(out: Path, quick: bool, log, progress) -> dict[str, Any]:
-    from ..tasks.stages import Stages, stage_data
+    from softpinn.bridge.tasks.stages import Stages, stage_data
 
     spec, plan, variant = _plan(quick)
     budgets = _budgets(plan, quick)
@@ -359,7 +359,7 @@ def _targets(steps: dict[str, Any], ttl: dict[str, Any]) -> list[dict[str, Any]]
 def _markdown(steps, ttl, quick: bool, figure: str) -> str:
     kinds = list(next(iter(steps["n"].values()))["kinds"])
     lines = [
-        "**Per step** (`learn/steptime.py`, as `benchmarks/bench_learn.py`): one training step "
+        "**Per step** (`learn/_steptime.py`, as `benchmarks/bench_learn.py`): one training step "
         f"(pair loss eq. 8 through one RK4 step, gradient, AdamW) on {steps['batch']} pairs, "
         f"float64, m = n, default networks, median of {steps['reps']} steps timed round-robin "
         f"in one process (load {steps['load_before']} → {steps['load_after']}):", "",
@@ -425,7 +425,7 @@ def _markdown(steps, ttl, quick: bool, figure: str) -> str:
 def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
               progress=None) -> dict[str, Any]:
     """Per-step cost and time to a test loss (the contract of :mod:`bridge.challenges`)."""
-    from ..tasks.stages import Stages
+    from softpinn.bridge.tasks.stages import Stages
 
     t0 = time.perf_counter()
     out = Path(out)

@@ -3,7 +3,7 @@
 A Lagrangian network (eq. 6) that learns A(q) as well recovers M, D, G, A only up to a
 transform P(q) (any P with P M, P D, P G, P A of the same dynamics fits the data as well;
 Tables I, VIII). With A(q) fixed to the true input matrix (``ModelConfig.input_form =
-"known"``, :mod:`softpinn.learn.known`) every such P must keep P A = A, which pins it to the
+"known"``, :mod:`softpinn.learn._known_input`) every such P must keep P A = A, which pins it to the
 identity wherever A has full row rank (task 4: A is 3 x 3, task 5: 6 x 6). The study trains
 today's network (A learned) and the known-A network on the same data with the same budget, and
 compares the learned M, M⁻¹, D, G (and M⁻¹G, M⁻¹A u) with the true ones DIRECTLY (P = I) over the
@@ -29,8 +29,8 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import to_jsonable
-from ..report.figsave import figure_dpi
+from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.figures.figsave import figure_dpi
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -58,8 +58,8 @@ LABELS = {"M": "M", "M_inv": "M⁻¹", "D": "D", "G": "G", "A": "A", "Minv_G": "
 
 
 def _plan(task: str, quick: bool):
-    from ...symbolic.spec import load_spec
-    from ..tasks.plan import ReproduceConfig, make_plan
+    from softpinn.symbolic.spec._spec import load_spec
+    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(task)
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
@@ -80,10 +80,10 @@ def _plan(task: str, quick: bool):
 
 def _matrices(spec, run_model, data, train_ids, count: int) -> dict[str, float]:
     """Direct relative residuals (percent, P = I) over ``count`` samples of the training data."""
-    from ...symbolic.model import TrueModel
-    from ..analysis.compare import learned_matrices, true_matrices
-    from ..analysis.forces import compare_forces, data_samples
-    from ..analysis.transforms import compare_direct, fit_alpha
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
+    from softpinn.bridge.analysis.forces import compare_forces, data_samples
+    from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 
     q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(run_model, q)
@@ -101,12 +101,12 @@ def _matrices(spec, run_model, data, train_ids, count: int) -> dict[str, float]:
 
 
 def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]:
-    from ...learn.data import load_dataset, mass_scale
-    from ...learn.predict import evaluate
-    from ...learn.rundir import load_run
-    from ..exact.serialize import spec_known_input
-    from ..tasks.plan import REPORT_WEIGHT
-    from ..tasks.stages import Stages, stage_data, stage_train, variant_model
+    from softpinn.learn._data import load_dataset, mass_scale
+    from softpinn.learn._predict import evaluate
+    from softpinn.learn._rundir import load_run
+    from softpinn.bridge.exact.serialize import spec_known_input
+    from softpinn.bridge.tasks.plan import REPORT_WEIGHT
+    from softpinn.bridge.tasks.stages import Stages, stage_data, stage_train, variant_model
 
     spec, plan, variant = _plan(task, quick)
     stages = Stages(out, lambda s: log(f"{task}: {s}"))
@@ -133,7 +133,7 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
         # the same networks and budget; A differs, and with A known M must reach the data's
         # scale itself (task 4: M ~ 0.005-0.03 against a start near 1, which a learned A
         # follows by scaling with it): the known-A network's M starts at the data's scale
-        # (mass_init from p = M q̇; learn.models scales its whole factor for a known A)
+        # (mass_init from p = M q̇; learn._models scales its whole factor for a known A)
         changes = {}
         if name == "known":
             changes = {"input_form": "known", "known_input": known_text,

@@ -8,7 +8,7 @@ studies into one folder, with one report.
 
 A study that finished in an earlier call with the same settings (``<study>/study.json``) is
 reused, not run again; an interrupted study starts over in its own folder (its own stages may
-resume). Nothing of the user's is overwritten (:mod:`bridge.outputs`).
+resume). Nothing of the user's is overwritten (:mod:`bridge.base.outputs`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from .. import outputs
+from softpinn.bridge.base import outputs
 
 #: The studies, in the report's order: module of :mod:`bridge.challenges` and its challenge.
 STUDIES = (

@@ -1,7 +1,7 @@
 """Challenge 3 (Section VI-B): Hamiltonian networks from velocity data.
 
 A Hamiltonian network (eq. 7) trains on momenta (eq. 9), which no robot measures. Here it
-trains on (q, q̇) only (``softpinn train --momenta velocity``, :mod:`softpinn.learn.velocity`):
+trains on (q, q̇) only (``softpinn train --momenta velocity``, :mod:`softpinn.learn._velocity`):
 p = M̂(q) q̇ with the network's own mass matrix inside the loss, one RK4 step of eq. 7 in
 (q, p), q̇ = M̂⁻¹(q) p back, and the velocity loss of eq. 8 (or eq. 10 where the task's recipe
 trains its Lagrangian network on accelerations: the network's q̈ at (q, q̇)). The study trains
@@ -13,7 +13,7 @@ after the best single scale α, and the training time.
 
 What velocity data can determine: M⁻¹G, M⁻¹D q̇, M⁻¹A u and q̈ (invariant under every transform
 P(q) of an equivalent Lagrangian), but not M, D, G, A themselves: (c M̂⁻¹, V̂/c, D̂/c, Â/c) move
-q exactly as (M̂⁻¹, V̂, D̂, Â) for every c > 0 (:mod:`softpinn.learn.velocity`). No network
+q exactly as (M̂⁻¹, V̂, D̂, Â) for every c > 0 (:mod:`softpinn.learn._velocity`). No network
 started without the momenta' scale can find c from (q, q̇) alone; the table shows α. A known
 actuator model pins c: the force-space pair (:data:`FORCE_MODELS`), both networks with the true
 A(q) and eq. 10 as ‖M̂ (q̈ - q̂̈)‖², is the study's answer to the challenge (RESULTS.md: task 5's
@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from ..outputs import to_jsonable
-from . import velocity_report as report
-from .velocity_settings import (
+from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.challenges import velocity_report as report
+from softpinn.bridge.challenges.velocity_settings import (
     BUDGETS,
     EXCITED_FREQUENCY,
     EXCITED_QUICK,
@@ -61,8 +61,8 @@ from .velocity_settings import (
 
 
 def _plan(task: str, quick: bool):
-    from ...symbolic.spec import load_spec
-    from ..tasks.plan import ReproduceConfig, make_plan
+    from softpinn.symbolic.spec._spec import load_spec
+    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(task)
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
@@ -97,9 +97,9 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
            known: bool = False) -> dict:
     """One network on the variant's physics data; a Hamiltonian one from its velocities. ``m``
     may set ``damping_form``, ``accel_space`` and ``batch_size`` besides the recipe's keys."""
-    from ...learn.data import load_dataset
-    from ...learn.models import ModelConfig
-    from ...learn.train import TrainConfig, train
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._models import ModelConfig
+    from softpinn.learn._train import TrainConfig, train
 
     f = files["physics"]
     data = load_dataset(f["path"])
@@ -108,13 +108,13 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
                      input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64",
                      damping_form=str(m.get("damping_form", "network")))
     if known:
-        from ..exact.serialize import spec_known_input
+        from softpinn.bridge.exact.serialize import spec_known_input
 
         mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
     weights = None
     if m.get("weights_from"):  # the weighted second pass: from that run, with its weights
-        from ...learn.losses import data_force_weights
-        from ...learn.train import load_run
+        from softpinn.learn._losses import data_force_weights
+        from softpinn.learn._train import load_run
 
         weights = data_force_weights(load_run(m["weights_from"]).model, data, f["train"],
                                      str(m["accel_labels"]))
@@ -140,10 +140,10 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
 def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
     """Relative residuals (percent) of the learned against the true matrices over ``count``
     samples of the training data: directly (P = I), and after the best single scale α."""
-    from ...symbolic.model import TrueModel
-    from ..analysis.compare import learned_matrices, true_matrices
-    from ..analysis.forces import compare_forces, data_samples
-    from ..analysis.transforms import compare_direct, fit_alpha
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
+    from softpinn.bridge.analysis.forces import compare_forces, data_samples
+    from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 
     q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(model, q)
@@ -165,9 +165,9 @@ def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
 def _predict(plan, files: dict, trained: dict, folder: Path) -> dict:
     """Rollouts of every test trajectory over the plan's horizon (within the data) from the
     true initial state with the true inputs (the one-step test error is the training's)."""
-    from ...learn.data import load_dataset, trajectories
-    from ...learn.predict import rollouts
-    from ...learn.train import load_run
+    from softpinn.learn._data import load_dataset, trajectories
+    from softpinn.learn._predict import rollouts
+    from softpinn.learn._train import load_run
 
     f = files["physics"]
     data = load_dataset(f["path"])
@@ -190,8 +190,8 @@ def _predict(plan, files: dict, trained: dict, folder: Path) -> dict:
 def _excitation(spec, data, train_ids, count: int) -> dict[str, Any]:
     """The inertial forces the training data show along each eigenvector of the true M
     (:func:`bridge.analysis.excitation.inertial_share`)."""
-    from ...symbolic.model import TrueModel
-    from ..analysis.excitation import data_share
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.bridge.analysis.excitation import data_share
 
     return data_share(TrueModel(spec), data, train_ids, count=count)[0]
 
@@ -200,9 +200,9 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress, tag_n
              only=None) -> dict[str, Any]:
     """Every network of :data:`MODELS` (or those in ``only``) on one variant's data; stages
     and results under ``tag_name`` (default: the variant's name)."""
-    from ...learn.data import load_dataset
-    from ...learn.train import load_ensemble
-    from ..tasks.stages import variant_model
+    from softpinn.learn._data import load_dataset
+    from softpinn.learn._train import load_ensemble
+    from softpinn.bridge.tasks.stages import variant_model
 
     data = load_dataset(files["physics"]["path"])
     tag_name = tag_name or variant.name
@@ -286,7 +286,7 @@ def _excited_plan(plan, variant):
 
 
 def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]:
-    from ..tasks.stages import Stages, stage_data
+    from softpinn.bridge.tasks.stages import Stages, stage_data
 
     spec, plan, variants = _plan(task, quick)
     stages = Stages(out, lambda s: log(f"{task}: {s}"))

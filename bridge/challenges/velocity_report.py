@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
-from ..report.figsave import figure_dpi
-from .velocity_settings import (
+from softpinn.bridge.figures.figsave import figure_dpi
+from softpinn.bridge.challenges.velocity_settings import (
     COLUMNS,
     FORCE_MODELS,
     LABELS,
@@ -258,7 +258,7 @@ def _excitation_lines(results: dict[str, Any]) -> list[str]:
     """The inertial forces each data set shows along the true M's two lightest directions
     (:func:`bridge.analysis.excitation.inertial_share`), the table that says where M⁻¹ can be
     learned from."""
-    from ..analysis.excitation import ratio_text
+    from softpinn.bridge.analysis.excitation import ratio_text
 
     rows = []
     for task, r in results.items():

@@ -41,7 +41,7 @@ MODELS = (("lagrangian", "lagrangian", "Lagrangian (eq. 6)"),
 FORCE_MODELS = ("lagrangian-force", "hamiltonian-force", "hamiltonian-weighted")
 #: The weighted second pass (``softpinn train --init RUN --accel-weights-from RUN``): from the
 #: force-space Hamiltonian network, each coordinate of the force residual weighted by
-#: mean(s) / s_i, s_i the rms of that network's M̂ q̈ (:func:`learn.losses.force_weights`), so
+#: mean(s) / s_i, s_i the rms of that network's M̂ q̈ (:func:`learn._losses.force_weights`), so
 #: the light segment's small forces count as much as the heavy one's; its own epochs and lr.
 WEIGHTED_BUDGET = {"epochs": 750, "lr": 3e-3}
 WEIGHTED_QUICK = {"epochs": 10, "lr": 3e-3}

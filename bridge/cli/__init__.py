@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in JIT_COMMANDS:
-        from ...learn.jitcache import enable_compile_cache
+        from softpinn.learn.jitcache import enable_compile_cache
 
         enable_compile_cache()
     try:

@@ -3,7 +3,7 @@
 Two caches, both safe to delete (whatever is missing is built again when next needed):
 
 * compiled C (``$SOFTPINN_CACHE``, else ``~/.cache/softpinn``): the shared libraries of derived
-  models, batched simulation kernels and controllers (:mod:`softpinn.symbolic.codegen`), one
+  models, batched simulation kernels and controllers (:mod:`softpinn.symbolic.codegen._codegen`), one
   folder per content hash;
 * XLA's compiled programs (:mod:`softpinn.learn.jitcache`): one folder per machine and jaxlib
   build under ``$SOFTPINN_JIT_CACHE``, else ``jax/`` in the first.
@@ -21,7 +21,7 @@ import re
 import shutil
 from pathlib import Path
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 _CODE = re.compile(r"(kernel_)?[0-9a-f]{24}")
 _BUILD = re.compile(r"\.build-.+")
@@ -82,7 +82,7 @@ def _remove(path: Path) -> None:
 
 def cmd_cache(args) -> int:
     from softpinn.learn import jitcache
-    from softpinn.symbolic.codegen import cache_dir
+    from softpinn.symbolic.codegen._codegen import cache_dir
 
     code_root = cache_dir()
     here = jitcache.cache_folder()  # None when SOFTPINN_JIT_CACHE is off

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.symbolic.errors import UserError
+from softpinn.errors import UserError
 
 
 @contextlib.contextmanager
 def warnings_as_lines():
     """Show the compiler fallback warning as one line ``softpinn: warning: ...``."""
-    from softpinn.symbolic.codegen import CompilerWarning
+    from softpinn.symbolic.codegen._codegen import CompilerWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CompilerWarning)

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from softpinn.bridge.errors import UserError
+from softpinn.errors import UserError
 
 
 def register(subparsers) -> None:
@@ -143,7 +143,7 @@ def cmd_control(args) -> int:
 
         jax.config.update("jax_enable_x64", True)
     from softpinn.bridge.control import MPCConfig, compare, default_input_bounds
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     if not (np.isfinite(args.rate) and args.rate > 0):

@@ -2,8 +2,8 @@
 
 * ``import REC.csv [...] --model MODEL --out DATA.npz``: recorded trajectories (configurations,
   or tip orientation from an IMU) into a dataset file
-  (:func:`symbolic.dataimport.import_recordings`);
-* ``init NAME --segments K``: a commented template spec (:func:`symbolic.template.write_template`).
+  (:func:`symbolic.recorded._import.import_recordings`);
+* ``init NAME --segments K``: a commented template spec (:func:`symbolic.recorded._template.write_template`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from softpinn.symbolic.errors import UserError
+from softpinn.errors import UserError
 
 
 def register(subparsers) -> None:
@@ -85,8 +85,8 @@ def register(subparsers) -> None:
 
 
 def cmd_import(args) -> int:
-    from softpinn.symbolic.datafile import write_dataset
-    from softpinn.symbolic.dataimport import import_recordings
+    from softpinn.symbolic.simulation._datafile import write_dataset
+    from softpinn.symbolic.recorded._import import import_recordings
 
     out = Path(args.out)
     if out.suffix != ".npz":
@@ -126,7 +126,7 @@ def cmd_import(args) -> int:
 
 
 def cmd_init(args) -> int:
-    from softpinn.symbolic.template import write_template
+    from softpinn.symbolic.recorded._template import write_template
 
     out = Path(args.out) if args.out else Path(f"{args.name}.toml")
     if out.suffix != ".toml":

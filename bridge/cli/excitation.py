@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import json
 
-from ..analysis.excitation import WEAK, mostly, ratio_text, weak_directions
-from ..errors import UserError
-from ..outputs import to_jsonable
+from softpinn.bridge.analysis.excitation import WEAK, mostly, ratio_text, weak_directions
+from softpinn.errors import UserError
+from softpinn.bridge.base.outputs import to_jsonable
 
 
 def register(subparsers) -> None:
@@ -36,11 +36,11 @@ def register(subparsers) -> None:
 
 
 def cmd_excitation(args) -> int:
-    from softpinn.learn.data import load_dataset
-    from softpinn.symbolic.model import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.learn._data import load_dataset
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.spec._spec import load_spec
 
-    from ..analysis.excitation import data_share
+    from softpinn.bridge.analysis.excitation import data_share
 
     if str(args.model).endswith(".npz") and not str(args.data).endswith(".npz"):
         raise UserError(f"excitation DATA.npz MODEL: {args.model} is a data set and {args.data} "

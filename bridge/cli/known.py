@@ -1,7 +1,7 @@
 """``--known-input`` of ``softpinn train`` and ``sweep``: a fixed input matrix A(q) (the known
 actuator model of Section VI-B) from a constant matrix file, a spec's exact A(q) or a program
 written by ``softpinn derive --programs``, as the ``known_input`` text of
-:class:`softpinn.learn.models.ModelConfig`, with one-line errors for what does not fit the data."""
+:class:`softpinn.learn._models.ModelConfig`, with one-line errors for what does not fit the data."""
 
 from __future__ import annotations
 
@@ -14,8 +14,8 @@ def known_input(source: str, n: int, m: int) -> str:
     checked against the data's n coordinates and m inputs."""
     from pathlib import Path
 
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.known import PROGRAM_FORMAT, known_input_text
+    from softpinn.errors import UserError
+    from softpinn.learn._known_input import PROGRAM_FORMAT, known_input_text
 
     path = Path(source)
     if path.suffix in (".npy", ".json"):
@@ -59,8 +59,8 @@ def known_input(source: str, n: int, m: int) -> str:
 def _known_program(source: str, data: dict, n: int, m: int) -> str:
     """``--known-input A.program.json``: A(q) as a replayable program (``softpinn derive
     --programs``), checked to be a function of the data's n coordinates with an n x m output."""
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.known import known_input_text, parse_known_input
+    from softpinn.errors import UserError
+    from softpinn.learn._known_input import known_input_text, parse_known_input
 
     outs = data.get("outputs")
     named = outs[0].get("name") if isinstance(outs, list) and len(outs) == 1 and isinstance(

@@ -1,4 +1,4 @@
-"""``softpinn predict``: flags mapped onto :func:`learn.predict.predict`; the errors, and what
+"""``softpinn predict``: flags mapped onto :func:`learn._predict.predict`; the errors, and what
 the run's numbers need said beside them (:mod:`bridge.cli.runnotes`)."""
 
 from __future__ import annotations
@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
-from .learn import _enable_x64
-from .runnotes import member_notes, note_interrupted, ran_away_text
+from softpinn.bridge.cli.learn import _enable_x64
+from softpinn.bridge.cli.runnotes import member_notes, note_interrupted, ran_away_text
 
 
 def register(subparsers) -> None:
@@ -60,8 +60,8 @@ def register(subparsers) -> None:
 
 def cmd_predict(args) -> int:
     _enable_x64()
-    from softpinn.learn.errors import UserError
-    from softpinn.learn.predict import predict
+    from softpinn.errors import UserError
+    from softpinn.learn._predict import predict
 
     if Path(args.run).is_file() and Path(args.data).is_dir():
         raise UserError(f"RUN {args.run} is a file and DATA {args.data} a folder; the order is "

@@ -1,4 +1,4 @@
-"""``softpinn simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.datasets.make_dataset`)
+"""``softpinn simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.simulation._datasets.make_dataset`)
 with the preset's ``[data]`` settings unless flags say otherwise (the flags are registered with
 the other symbolic commands in :mod:`bridge.cli.symbolic`)."""
 
@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.outputs import count_of
+from softpinn.errors import UserError
+from softpinn.symbolic._outputs import count_of
 
-from .checks import check_writable, positive, warnings_as_lines
+from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
 
 
 def _test_words(data) -> str:
@@ -26,15 +26,15 @@ def _test_words(data) -> str:
 
 
 def cmd_simulate(args) -> int:
-    from softpinn.symbolic.datafile import write_datasets
-    from softpinn.symbolic.datasets import (
+    from softpinn.symbolic.simulation._datafile import write_datasets
+    from softpinn.symbolic.simulation._datasets import (
         check_seed,
         data_config,
         make_dataset,
         plan_dataset,
         resample,
     )
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     cfg = data_config(spec)
@@ -103,7 +103,7 @@ def cmd_simulate(args) -> int:
                 raise UserError("--ray: farms out the CasADi integrators; --integrator jax-rk4 "
                                 "runs every trajectory at once already")
             if args.ray is not None:
-                from softpinn.symbolic.farm import ray_simulator
+                from softpinn.symbolic.simulation._farm import ray_simulator
 
                 sim = ray_simulator(spec, address=args.ray, compile=not args.no_compile,
                                     cache=args.cache, num_cpus=args.threads
@@ -113,8 +113,8 @@ def cmd_simulate(args) -> int:
                                     simulator_meta={"compiled": not args.no_compile,
                                                     "farmed_out": f"ray ({args.ray})"})
             elif use_jax:
-                from ..cli.learn import _enable_x64
-                from ..exact import make_dataset as jax_dataset
+                from softpinn.bridge.cli.learn import _enable_x64
+                from softpinn.bridge.exact import make_dataset as jax_dataset
 
                 _enable_x64()
                 data = jax_dataset(plan=plan, progress=bar.update if bar is not None else None,
@@ -133,7 +133,7 @@ def cmd_simulate(args) -> int:
             bar.leave = not failed  # an error leaves one clean line on stderr
             bar.close()
     if args.equilibria:
-        from softpinn.symbolic.equilibria import attach, equilibria
+        from softpinn.symbolic.simulation._equilibria import attach, equilibria
 
         data = attach(data, equilibria(spec, args.equilibria, seed=plan.seed))
     subs = [resample(data, rate) for rate in extra_rates]

@@ -25,7 +25,7 @@ def _split_flags(group) -> None:
 def _add_settings(parser) -> None:
     """``softpinn train``'s setting and network flags (defaults and help from the configs),
     less the ones a sweep decides per trial (seeds) or names otherwise (--train-samples)."""
-    from .learn import add_network_flags, add_setting_flags
+    from softpinn.bridge.cli.learn import add_network_flags, add_setting_flags
 
     add_setting_flags(parser, skip=_OWN, split_flags=_split_flags,
                       title=lambda g: f"{g} (fixed for every trial unless swept)")
@@ -36,7 +36,7 @@ def register(subparsers) -> None:
     from softpinn.bridge.sweep import METRICS, SCHEDULERS
     from softpinn.bridge.sweep.space import RANDOM_KINDS
 
-    from .learn import MODEL_KINDS, track_given
+    from softpinn.bridge.cli.learn import MODEL_KINDS, track_given
 
     p = subparsers.add_parser(
         "sweep",
@@ -140,7 +140,7 @@ class _Bar:
 def cmd_sweep(args) -> int:
     import importlib.util
 
-    from softpinn.bridge.errors import UserError
+    from softpinn.errors import UserError
     from softpinn.bridge.sweep import RAY_MISSING
 
     try:
@@ -163,10 +163,10 @@ def cmd_sweep(args) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from softpinn.learn.config import TrainConfig
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._config import TrainConfig
+    from softpinn.learn._data import load_dataset
 
-    from .learn import _model_config
+    from softpinn.bridge.cli.learn import _model_config
 
     data = load_dataset(args.data)
     test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
@@ -186,7 +186,7 @@ def cmd_sweep(args) -> int:
         bar.close()
     rows, best = result.rows, result.best
     if args.json:
-        from .learn import _nulls
+        from softpinn.bridge.cli.learn import _nulls
 
         print(json.dumps(_nulls({"out": str(result.out), "best": best, "trials": len(rows),
                                  "results": rows}), allow_nan=False))

@@ -5,8 +5,8 @@ The commands only map flags onto :mod:`symbolic` functions:
 * ``models``: the presets (name, kind, n, m, description);
 * ``matrices MODEL --q ...``: M, M^-1, G, D, A, energy (and C, qdd with ``--qd``) at one q;
 * ``derive MODEL --out DIR``: C source, shared library, CasADi files and ``summary.json``
-  (:func:`symbolic.codegen.generate`);
-* ``simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.datasets.make_dataset`) with
+  (:func:`symbolic.codegen._codegen.generate`);
+* ``simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.simulation._datasets.make_dataset`) with
   the preset's ``[data]`` settings unless flags say otherwise (its command in
   :mod:`bridge.cli.simulate`; checks both share in :mod:`bridge.cli.checks`).
 """
@@ -20,11 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.symbolic.errors import UserError
-from softpinn.symbolic.outputs import dumps
+from softpinn.errors import UserError
+from softpinn.symbolic._outputs import dumps
 
-from .checks import check_writable, positive, warnings_as_lines
-from .simulate import cmd_simulate
+from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
+from softpinn.bridge.cli.simulate import cmd_simulate
 
 SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
 
@@ -93,7 +93,7 @@ def register(subparsers) -> None:
     p.add_argument(
         "--programs", action="store_true",
         help="also write every function as <name>.program.json, its instruction list that "
-        "softpinn.learn.program replays in JAX where CasADi is not installed (a GPU node: "
+        "softpinn.learn._sx_replay replays in JAX where CasADi is not installed (a GPU node: "
         "train --known-input DIR/A.program.json there)")
     p.add_argument(
         "--cache",
@@ -181,7 +181,7 @@ def register(subparsers) -> None:
 
 
 def cmd_models(args) -> int:
-    from softpinn.symbolic.spec import list_presets, load_spec
+    from softpinn.symbolic.spec._spec import list_presets, load_spec
 
     rows = []
     for name in list_presets():
@@ -215,8 +215,8 @@ def _vector(flag: str, values, size: int, model: str) -> np.ndarray:
 
 
 def cmd_matrices(args) -> int:
-    from softpinn.symbolic.model import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     q = _vector("--q", args.q, spec.n, spec.name)
@@ -281,10 +281,10 @@ def _impossible_lengths(spec, q) -> list[str]:
 
 
 def cmd_derive(args) -> int:
-    from softpinn.symbolic.codegen import find_compiler, generate, read_derive_summary
-    from softpinn.symbolic.eom import derive
-    from softpinn.symbolic.functions import functions_of
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.codegen._codegen import find_compiler, generate, read_derive_summary
+    from softpinn.symbolic.derivation._eom import derive
+    from softpinn.symbolic.model._functions import functions_of
+    from softpinn.symbolic.spec._spec import load_spec
 
     positive("timeout", args.timeout)
     spec = load_spec(args.model)

@@ -11,9 +11,9 @@
 See docs/control.md.
 """
 
-from .compare import REFERENCES, compare
-from .loop import closed_loop, metrics, plant
-from .models import (
+from softpinn.bridge.control.compare import REFERENCES, compare
+from softpinn.bridge.control.loop import closed_loop, metrics, plant
+from softpinn.bridge.control.models import (
     PredictionModel,
     from_export,
     from_run,
@@ -23,8 +23,8 @@ from .models import (
     resolve_run,
     tip_output,
 )
-from .mpc import MPC, QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig, rk4_map
-from .references import (
+from softpinn.bridge.control.mpc import MPC, QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig, rk4_map
+from softpinn.bridge.control.references import (
     circle_reference,
     circle_start,
     default_center,

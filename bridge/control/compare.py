@@ -31,10 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import UserError
-from ..outputs import to_jsonable
-from .loop import closed_loop, metrics, outside_data, plant
-from .models import (
+from softpinn.errors import UserError
+from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
+from softpinn.bridge.control.models import (
     PredictionModel,
     from_run,
     from_true,
@@ -43,8 +43,8 @@ from .models import (
     resolve_run,
     tip_output,
 )
-from .mpc import MPC, MPCConfig
-from .references import (
+from softpinn.bridge.control.mpc import MPC, MPCConfig
+from softpinn.bridge.control.references import (
     circle_reference,
     circle_start,
     default_center,
@@ -132,7 +132,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
             progress: Callable[[], None] | None = None,
             progress_total: Callable[[int], None] | None = None) -> dict:
     """Compare MPC with each prediction model on the plant ``model`` (a preset name, spec file
-    or :class:`~softpinn.symbolic.spec.ModelSpec`); returns what ``results.json`` holds.
+    or :class:`~softpinn.symbolic.spec._spec.ModelSpec`); returns what ``results.json`` holds.
 
     ``runs``: trained runs (``softpinn train`` directories, ``softpinn reproduce`` stage
     folders holding ``run/``) or ``softpinn export`` directories; ``member``/``mean`` choose
@@ -145,8 +145,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     simulations (controllers x references).
     """
     from softpinn import __version__
-    from softpinn.symbolic.model import TrueModel
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.spec._spec import load_spec
 
     t_start = time.perf_counter()
     config = MPCConfig() if config is None else config
@@ -180,7 +180,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     if duration is not None and not (np.isfinite(duration) and duration > 0):
         raise UserError(f"duration: expected a number of seconds > 0, got {duration!r}")
 
-    from .. import outputs
+    from softpinn.bridge.base import outputs
 
     if out is not None:
         outputs.check(Path(out), "control", force=force)  # one line, before any work
@@ -281,8 +281,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     }
     result = to_jsonable(result)
     if out_dir is not None:
-        from .plots import write_figures
-        from .report import write_report
+        from softpinn.bridge.control.plots import write_figures
+        from softpinn.bridge.control.report import write_report
 
         written = [_write_json(out_dir / "results.json", result)]
         written += _write_traces(out_dir, refs, traces, config.dt)

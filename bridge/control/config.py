@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 __all__ = ["MPCConfig", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
 

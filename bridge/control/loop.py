@@ -13,7 +13,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 __all__ = ["plant", "closed_loop", "metrics", "outside_data"]
 

@@ -18,7 +18,7 @@ with u_{-1} the input applied at the last step. Two solvers:
   solved by a Cholesky solve when no bound is active, else by a dense QP solver shipped with
   CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
   backtracking line search on the cost keeps each step a descent. The Functions are compiled
-  through the project's code cache (:mod:`softpinn.symbolic.codegen`), so a model compiles
+  through the project's code cache (:mod:`softpinn.symbolic.codegen._codegen`), so a model compiles
   once per machine; without a C compiler they run in CasADi's virtual machine.
 * ``"ipopt"``: the same problem in multiple shooting with exact Hessians, solved by IPOPT
   (``casadi.nlpsol``) in CasADi's virtual machine, warm-started from the shifted previous
@@ -36,10 +36,10 @@ import time
 import casadi as ca
 import numpy as np
 
-from ..errors import UserError
-from .config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
-from .models import PredictionModel
-from .rk4 import _field_functions, _frozen_sensitivities, _stage_functions, _sym, rk4_map
+from softpinn.errors import UserError
+from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
+from softpinn.bridge.control.models import PredictionModel
+from softpinn.bridge.control.rk4 import _field_functions, _frozen_sensitivities, _stage_functions, _sym, rk4_map
 
 __all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
 
@@ -135,7 +135,7 @@ class MPC:
     # ------------------------------------------------------------------ Gauss-Newton SQP
 
     def _build_sqp(self, compiler, cache):
-        from softpinn.symbolic.codegen import DEFAULT_FLAGS, compile_functions
+        from softpinn.symbolic.codegen._codegen import DEFAULT_FLAGS, compile_functions
 
         cfg, mod = self.config, self.model
         n, nx, m, N, ny = mod.n, self.nx, self.m, self.N, self.ny

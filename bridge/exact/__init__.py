@@ -7,11 +7,11 @@ thousands of trajectories at once and known-actuator / hybrid models in ``softpi
     qdd = jax.jit(jax.vmap(em.qdd))(Q, QD, U)  # batched forward dynamics (eq. 4)
 """
 
-from .dataset import make_dataset
-from .errors import TranslationError
-from .model import ExactModel, dynamics, jax_model
-from .simulate import simulate
-from .translate import Program, translate
+from softpinn.bridge.exact.dataset import make_dataset
+from softpinn.bridge.exact.errors import TranslationError
+from softpinn.bridge.exact.model import ExactModel, dynamics, jax_model
+from softpinn.bridge.exact.simulate import simulate
+from softpinn.bridge.exact.translate import Program, translate
 
 __all__ = [
     "ExactModel",

@@ -1,12 +1,12 @@
 """Data sets simulated in JAX, in the file format of ``softpinn simulate``.
 
-:func:`make_dataset` is :func:`softpinn.symbolic.datasets.make_dataset` with the integration
+:func:`make_dataset` is :func:`softpinn.symbolic.simulation._datasets.make_dataset` with the integration
 done by :func:`.simulate.simulate` (fixed-step RK4 on the translated exact model, all
 trajectories at once) instead of CasADi, passed in as its ``simulator``: the same plan, the
 same draws of initial states and signals (trajectory k from ``default_rng([seed, k])``), the
 same arrays and the same ``meta``, so every consumer takes it unchanged.
 ``meta["simulation"]["method"]`` and ``meta["compiled"]`` (``"c-kernel"``: the batched C kernels
-of :mod:`softpinn.symbolic.kernel`, the default on a CPU with a C compiler; ``"jax"``: XLA, on a
+of :mod:`softpinn.symbolic.codegen._kernel`, the default on a CPU with a C compiler; ``"jax"``: XLA, on a
 GPU or without a compiler) say how it was made.
 """
 
@@ -16,11 +16,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from ...symbolic.datasets import DatasetArrays, DatasetPlan, _version, plan_dataset
-from ...symbolic.datasets import make_dataset as _make_dataset
-from ...symbolic.spec import ModelSpec
-from .model import jax_model
-from .simulate import choose_backend, simulate
+from softpinn.symbolic.simulation._datasets import DatasetArrays, DatasetPlan, _version, plan_dataset
+from softpinn.symbolic.simulation._datasets import make_dataset as _make_dataset
+from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.bridge.exact.model import jax_model
+from softpinn.bridge.exact.simulate import choose_backend, simulate
 
 METHOD = "classical Runge-Kutta 4, fixed step (JAX/XLA, translated exact model, vmap + scan)"
 METHOD_C = ("classical Runge-Kutta 4, fixed step (batched C kernels of the exact model's SX "
@@ -36,7 +36,7 @@ def make_dataset(
     **options,
 ) -> DatasetArrays:
     """Simulate a model's data set (Section III-B) with all trajectories at once; ``plan`` or
-    ``model`` with the keyword ``options`` of :func:`softpinn.symbolic.datasets.plan_dataset`
+    ``model`` with the keyword ``options`` of :func:`softpinn.symbolic.simulation._datasets.plan_dataset`
     (``integrator`` defaults to, and must be, ``"rk4"``); ``backend`` as in
     :func:`.simulate.simulate`."""
     backend = choose_backend(backend)

@@ -1,6 +1,6 @@
 """``ExactModel``: the exact PCC equations of a spec as pure JAX functions of ONE state.
 
-Every CasADi Function of :func:`softpinn.symbolic.functions` (M, M^-1, G, D, A, C, C qd,
+Every CasADi Function of :func:`softpinn.symbolic.model._functions` (M, M^-1, G, D, A, C, C qd,
 forward and inverse dynamics, energies, momentum, the Hamiltonian form (eq. 7) and the ODE of
 eq. 4) is replayed in ``jax.numpy`` (:mod:`.translate`); the methods take one state
 (``q`` of shape (n,)) and compose with ``jax.jit``, ``jax.vmap`` and ``jax.grad``. Values are
@@ -14,10 +14,10 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from ...symbolic.functions import functions
-from ...symbolic.spec import ModelSpec, load_spec
-from .errors import TranslationError
-from .translate import Program, translate
+from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.bridge.exact.errors import TranslationError
+from softpinn.bridge.exact.translate import Program, translate
 
 #: outputs that are 1 x 1 in CasADi and scalars here
 _SCALARS = frozenset({"energy", "kinetic", "potential"})

@@ -2,7 +2,7 @@
 
 :func:`program_data` writes a Program's SX instruction list as a JSON-ready dict that names
 every operation (``"ADD"``, ``"SIN"``, ... : CasADi's ``OP_*`` names without the prefix, not
-its version-dependent integer codes), so that :mod:`softpinn.learn.known` can replay it in JAX
+its version-dependent integer codes), so that :mod:`softpinn.learn._known_input` can replay it in JAX
 without CasADi (a run's known input matrix A(q), eq. 6, stored in its ``config.json``)::
 
     {"format": "softpinn-program/1", "name": "A",
@@ -28,9 +28,9 @@ from typing import Any
 
 import casadi as ca
 
-from ...learn.program import PROGRAM_FORMAT
-from .errors import TranslationError
-from .translate import Program, translate
+from softpinn.learn._sx_replay import PROGRAM_FORMAT
+from softpinn.bridge.exact.errors import TranslationError
+from softpinn.bridge.exact.translate import Program, translate
 
 __all__ = ["FORMAT", "program_data", "function_data", "casadi_function", "spec_known_input"]
 
@@ -119,11 +119,11 @@ def casadi_function(data: dict[str, Any], name: str | None = None) -> ca.Functio
 
 def spec_known_input(model) -> tuple[str, int, int]:
     """``(known_input text, n, m)``: the exact A(q) of a spec (a preset name, a spec path or a
-    ``ModelSpec``) as program data for :class:`softpinn.learn.models.ModelConfig`
+    ``ModelSpec``) as program data for :class:`softpinn.learn._models.ModelConfig`
     (``input_form="known"``)."""
-    from ...learn.known import known_input_text
-    from ...symbolic.functions import functions
-    from ...symbolic.spec import load_spec
+    from softpinn.learn._known_input import known_input_text
+    from softpinn.symbolic.model._functions import functions
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(model)
     return known_input_text(function_data(functions(spec)["A"])), spec.n, spec.m

@@ -1,18 +1,18 @@
 """Fixed-step RK4 simulation of the exact model in JAX: thousands of trajectories at once.
 
-The same integration as ``symbolic.simulate``'s ``rk4`` path (classical Runge-Kutta, step
+The same integration as ``symbolic.simulation._simulate``'s ``rk4`` path (classical Runge-Kutta, step
 ``config.step``, ``config.substeps`` steps per output sample, outputs on the grid
 t_k = k / rate, u(t) evaluated exactly inside the integrator from the same
-:class:`~softpinn.symbolic.signals.Signal` definitions: their CasADi ``u(t, p)`` is translated to
+:class:`~softpinn.symbolic.simulation._signals.Signal` definitions: their CasADi ``u(t, p)`` is translated to
 JAX like the model), driven by the translated ``ode`` of eq. 4. Trajectories are ``vmap``-ped
 (the batch is the minor axis of every scalar operation, so XLA vectorises across trajectories),
 time steps run in ``lax.scan``; the four RK stages are a scan too, so the ODE appears once in the
-compiled program. Returns the :class:`~softpinn.symbolic.simulate.SimResult` of the CasADi path,
+compiled program. Returns the :class:`~softpinn.symbolic.simulation._simulate.SimResult` of the CasADi path,
 with the same checks: non-finite states and ill-conditioned mass matrices raise
-:class:`~softpinn.symbolic.simulate.SingularityError`.
+:class:`~softpinn.symbolic.simulation._simulate.SingularityError`.
 
 Two backends run the same arithmetic: ``"c"``, the batched C kernels of
-:mod:`softpinn.symbolic.kernel` (the ODE's SX instructions in a loop over trajectories that the
+:mod:`softpinn.symbolic.codegen._kernel` (the ODE's SX instructions in a loop over trajectories that the
 compiler vectorises, with the RK4 loop in the same C, trajectories split over
 ``config.threads`` threads), and ``"jax"`` (XLA). ``backend="auto"`` takes C on the CPU when a C
 compiler is found (task5: 0.4 µs per ODE evaluation against 2.4 µs in XLA, 5 s to compile
@@ -29,18 +29,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ...symbolic import kernel
-from ...symbolic.samples import in_threads
-from ...symbolic.signals import Signal
-from ...symbolic.simulate import (
+from softpinn.symbolic.codegen import _kernel as kernel
+from softpinn.symbolic.simulation._samples import in_threads
+from softpinn.symbolic.simulation._signals import Signal
+from softpinn.symbolic.simulation._simulate import (
     SimResult,
     SimulationConfig,
     SimulationError,
     SingularityError,
     condition_numbers,
 )
-from .model import ExactModel
-from .translate import translate
+from softpinn.bridge.exact.model import ExactModel
+from softpinn.bridge.exact.translate import translate
 
 #: RK4 stages: the state offset of stage i is c[i] * dt * k_{i-1}; the step adds b[i] * k_i
 _C = (0.0, 0.5, 0.5, 1.0)
@@ -143,7 +143,7 @@ def simulate(
 ) -> SimResult:
     """Integrate K trajectories from ``x0`` (K, 2n) under ``signals`` (K) with fixed-step RK4
     (``config.integrator`` must be ``"rk4"``) on ``backend`` (see the module docstring); the
-    result matches :func:`softpinn.symbolic.simulate.simulate` field by field, and
+    result matches :func:`softpinn.symbolic.simulation._simulate.simulate` field by field, and
     ``info["backend"]`` says which ran."""
     backend = choose_backend(backend)
     if config.integrator != "rk4":

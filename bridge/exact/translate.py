@@ -18,11 +18,11 @@ from __future__ import annotations
 import casadi as ca
 import jax.numpy as jnp
 
-from ...learn.program import KNOWN_OPS, replay
-from .errors import TranslationError
+from softpinn.learn._sx_replay import KNOWN_OPS, replay
+from softpinn.bridge.exact.errors import TranslationError
 
 #: CasADi's operation codes by name ("ADD", ...: ``OP_*`` without the prefix); the code keeps
-#: the names, which :func:`softpinn.learn.program.replay` evaluates
+#: the names, which :func:`softpinn.learn._sx_replay.replay` evaluates
 _OP_NAMES = {getattr(ca, a): a[3:] for a in dir(ca) if a.startswith("OP_")}
 
 

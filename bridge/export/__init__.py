@@ -6,8 +6,8 @@ Functions, generated C and metadata (``softpinn export``).
     fns = load_exported("exported/lnn"); fns["qdd"](q, qd, u)
 """
 
-from .dynamics import export_functions
-from .params import model_params
-from .writer import ExportResult, export_run, load_exported
+from softpinn.bridge.export.dynamics import export_functions
+from softpinn.bridge.export.params import model_params
+from softpinn.bridge.export.writer import ExportResult, export_run, load_exported
 
 __all__ = ["ExportResult", "export_functions", "export_run", "load_exported", "model_params"]

@@ -34,7 +34,7 @@ def cmd_export(args) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from .writer import export_run
+    from softpinn.bridge.export.writer import export_run
 
     def log(text):
         if not args.json:

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from ..errors import UserError
-from .layers import cho_solve, field_expression, lower_inverse, mlp
+from softpinn.errors import UserError
+from softpinn.bridge.export.layers import cho_solve, field_expression, lower_inverse, mlp
 
 __all__ = ["member_expressions", "export_functions", "step_function", "MATRIX_NAMES"]
 
@@ -113,7 +113,7 @@ def member_expressions(params: dict, sym: dict) -> dict:
 def step_function(field: ca.Function, n: int, m: int, *, substeps: int, input_hold: str):
     """``step(x, u0, u1, dt) -> x_next``: ``substeps`` RK4 steps of dt / substeps of ``field``,
     the input held at u0 ("constant") or interpolated from u0 to u1 ("linear"), exactly as
-    :func:`softpinn.learn.integrate.step`. An MX function that calls ``field``."""
+    :func:`softpinn.learn._integrate.step`. An MX function that calls ``field``."""
     x = ca.MX.sym("x", 2 * n)
     u0, u1 = ca.MX.sym("u0", m), ca.MX.sym("u1", m)
     dt = ca.MX.sym("dt")

@@ -1,4 +1,4 @@
-"""The sub-networks of :mod:`softpinn.learn.nets` rebuilt as CasADi SX expressions.
+"""The sub-networks of :mod:`softpinn.learn._nets` rebuilt as CasADi SX expressions.
 
 Each function takes the numeric parameters of one trained field (numpy arrays) and an SX column
 vector and returns the same quantity the JAX field computes, with the same activations and the
@@ -21,7 +21,7 @@ import math
 import casadi as ca
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 __all__ = [
     "ACTIVATIONS",
@@ -38,7 +38,7 @@ __all__ = [
 
 
 def softplus(z):
-    """log(1 + eᶻ) as :func:`softpinn.learn.nets.softplus` writes it: max(z, 0) + log1p(e^-|z|)."""
+    """log(1 + eᶻ) as :func:`softpinn.learn._nets.softplus` writes it: max(z, 0) + log1p(e^-|z|)."""
     return ca.fmax(z, 0) + ca.log1p(ca.exp(-ca.fabs(z)))
 
 
@@ -68,7 +68,7 @@ ACTIVATIONS = {
 
 
 def activation(name: str):
-    """The CasADi form of the activation ``name`` (the names of ``learn.nets.ACTIVATIONS``)."""
+    """The CasADi form of the activation ``name`` (the names of ``learn._nets.ACTIVATIONS``)."""
     try:
         return ACTIVATIONS[name]
     except KeyError:
@@ -78,7 +78,7 @@ def activation(name: str):
 
 
 def mlp(params: dict, x):
-    """The MLP of ``learn.nets.MLP`` at the SX column ``x``.
+    """The MLP of ``learn._nets.MLP`` at the SX column ``x``.
 
     ``params``: ``{"weights": [W_0, ..., W_d], "biases": [...], "activation": name}`` with
     W_i of shape (fan_out, fan_in).
@@ -161,7 +161,7 @@ def field_expression(field: dict, q):
     if kind == "known":  # a known A(q): a constant, or the exact A(q) rebuilt from its program
         if "value" in field:
             return ca.SX(ca.DM(np.asarray(field["value"], float)))
-        from ..exact.serialize import casadi_function
+        from softpinn.bridge.exact.serialize import casadi_function
 
         return casadi_function(field["program"])(q)
     if kind == "zero":

@@ -1,7 +1,7 @@
 """Numeric parameters of a trained model, read off its Equinox modules into plain numpy.
 
 The exporter never calls the JAX model: it reads the weights of each sub-network
-(:mod:`softpinn.learn.nets`) and hands them to :mod:`.layers`, which rebuilds the same
+(:mod:`softpinn.learn._nets`) and hands them to :mod:`.layers`, which rebuilds the same
 expressions in CasADi. Every field becomes a small dict with a ``kind``; parameters are cast to
 float64 (a float32 model exports in float64 from its float32 weights).
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 __all__ = ["mlp_params", "field_params", "model_params"]
 
@@ -20,7 +20,7 @@ def _f64(a) -> np.ndarray:
 
 
 def mlp_params(mlp) -> dict:
-    """``{"weights", "biases", "activation"}`` of a ``learn.nets.MLP``."""
+    """``{"weights", "biases", "activation"}`` of a ``learn._nets.MLP``."""
     return {
         "weights": [_f64(W) for W in mlp.weights],
         "biases": [_f64(b) for b in mlp.biases],
@@ -54,16 +54,16 @@ def field_params(field) -> dict:
     if name == "ZeroMatrix":
         return {"kind": "zero", "shape": tuple(int(s) for s in field.shape)}
     raise UserError(
-        f"model field of type {name} cannot be exported; expected one of the learn.nets fields "
+        f"model field of type {name} cannot be exported; expected one of the learn._nets fields "
         "(CholeskyField, ConstantCholesky, ScalarField, MatrixField, ConstantMatrix, ZeroMatrix)"
     )
 
 
 def model_params(model) -> dict:
-    """``{"kind", "n", "m", "state_kind", ...fields}`` of a loaded ``learn.models`` model."""
+    """``{"kind", "n", "m", "state_kind", ...fields}`` of a loaded ``learn._models`` model."""
     cfg = model.config
     # a Hamiltonian network is exported as eq. 7 on (q, p), also one trained on (q, q̇) with
-    # its own momenta p = M̂ q̇ (learn/velocity.py): its field is the same
+    # its own momenta p = M̂ q̇ (learn/_velocity.py): its field is the same
     state = "momentum" if cfg.kind == "hamiltonian" else model.state_kind
     out = {"kind": cfg.kind, "n": int(cfg.n), "m": int(cfg.m), "state_kind": state}
     if cfg.kind == "blackbox":

@@ -7,7 +7,7 @@ The output directory holds
   ``M_inv``, ``G``, ``D``, ``A``); load any of them with ``casadi.Function.load``;
 * ``model.c`` and ``model.h``: the same Functions as C (CasADi's code generator, one C function
   per name with the usual ``<name>_work``/``<name>_n_in``... companions), and ``model.so``, that C
-  compiled through the project's code cache (:func:`softpinn.symbolic.codegen.compile_functions`;
+  compiled through the project's code cache (:func:`softpinn.symbolic.codegen._codegen.compile_functions`;
   absent without a C compiler);
 * ``model.json``: kind, sizes, state and coordinate names, units, the training data and
   configuration, the integrator of ``step``, a checksum of the run's files, the versions.
@@ -25,9 +25,9 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from ..errors import UserError
-from .dynamics import export_functions
-from .params import model_params
+from softpinn.errors import UserError
+from softpinn.bridge.export.dynamics import export_functions
+from softpinn.bridge.export.params import model_params
 
 __all__ = ["export_run", "ExportResult", "FORMAT", "FORMAT_VERSION", "load_exported"]
 
@@ -76,7 +76,7 @@ def _select_members(run: Path, info: dict, member, mean: bool) -> list[int | Non
 
 def _check_out(out: Path, force: bool) -> None:
     """The refusals of :func:`_prepare_out`, before any work and without writing anything."""
-    from .. import outputs
+    from softpinn.bridge.base import outputs
 
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
@@ -159,7 +159,7 @@ def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dic
 
 def _write_c(fns: dict, out: Path, compiler, log=lambda text: None) -> dict:
     """model.c + model.h (CasADi code generator) and model.so from the project's code cache."""
-    from softpinn.symbolic.codegen import compile_functions
+    from softpinn.symbolic.codegen._codegen import compile_functions
 
     cg = ca.CodeGenerator("model.c", {"with_header": True, "casadi_real": "double"})
     for key in sorted(fns):

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .experiment_figures import (
+from softpinn.bridge.figures.experiment import (
     KINDS,
     PREP_TITLE,
     UNIT,
@@ -21,10 +21,10 @@ from .experiment_figures import (
     rollout_plot,
     sensor_figure,
 )
-from .paper import load_paper_tables
-from .rollouts import NETWORK
-from .tables import Span, Table, format_mean_std, format_number, to_markdown, write_table
-from .walltime import WallTime
+from softpinn.bridge.figures.paper import load_paper_tables
+from softpinn.bridge.figures.rollouts import NETWORK
+from softpinn.bridge.figures.tables import Span, Table, format_mean_std, format_number, to_markdown, write_table
+from softpinn.bridge.report.walltime import WallTime
 
 WHO = {"lagrangian": "Lagrangian network", "blackbox": "black box"}
 
@@ -292,7 +292,7 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
     tid = int(main["preprocessing"]["none"]["import"]["test"][0])
     rows = truth["traj"] == tid
     t = truth["t"][rows]
-    from softpinn.learn.data import load_dataset
+    from softpinn.learn._data import load_dataset
 
     processed = {}
     for p, e in main["preprocessing"].items():

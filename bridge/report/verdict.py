@@ -7,9 +7,9 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from ..analysis.transform_result import match_word
-from ..errors import UserError
-from .paper import load_paper_tables, paper_task
+from softpinn.bridge.analysis.transform_result import match_word
+from softpinn.errors import UserError
+from softpinn.bridge.figures.paper import load_paper_tables, paper_task
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 

@@ -1,7 +1,7 @@
 """Hyperparameter sweeps and seed ensembles through Ray Tune (``pip install 'softpinn[ray]'``).
 
-:func:`sweep` trains one :func:`softpinn.learn.train.train` run per trial, a grid and/or random
-draws over :class:`learn.config.TrainConfig` settings times seeds (:mod:`.space`), on a local
+:func:`sweep` trains one :func:`softpinn.learn._train.train` run per trial, a grid and/or random
+draws over :class:`learn._config.TrainConfig` settings times seeds (:mod:`.space`), on a local
 Ray instance or a Ray cluster (``address``), with ASHA stopping the worse trials early
 (:mod:`.trial`), and writes::
 
@@ -29,12 +29,12 @@ import signal
 from dataclasses import dataclass
 from pathlib import Path
 
-from softpinn.learn.config import TrainConfig
-from softpinn.symbolic.farm import ray_init
+from softpinn.learn._config import TrainConfig
+from softpinn.symbolic.simulation._farm import ray_init
 
-from .. import outputs
-from ..errors import UserError
-from .space import Random, Trial, check_space, make_trials, parse_space
+from softpinn.bridge.base import outputs
+from softpinn.errors import UserError
+from softpinn.bridge.sweep.space import Random, Trial, check_space, make_trials, parse_space
 
 __all__ = ["METRICS", "RAY_MISSING", "SCHEDULERS", "Random", "SweepResult", "Trial",
            "make_trials", "parse_space", "sweep"]
@@ -168,7 +168,7 @@ def sweep(
     ray, tune = _import_ray()
     if address is not None:
         _check_reachable(address)
-    from softpinn.learn.data import Dataset, load_dataset
+    from softpinn.learn._data import Dataset, load_dataset
 
     mc = base_config.model
     if not isinstance(data, Dataset):
@@ -234,7 +234,7 @@ def _tune(tune, trials, specs, data, root, *, scheduler, metric, cpus, gpus, max
     finished: completed, stopped by the scheduler or failed, not interrupted)."""
     from ray.tune.schedulers import ASHAScheduler, FIFOScheduler
 
-    from .trial import Trial as TrialTrainable
+    from softpinn.bridge.sweep.trial import Trial as TrialTrainable
 
     max_t = max(t.config.epochs for t in trials)
     if scheduler == "asha":
@@ -315,7 +315,7 @@ def _callback(tune, progress, total):
 
 
 def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> dict:
-    from softpinn.learn.checkpoint import read_json
+    from softpinn.learn._checkpoint import read_json
 
     tdir = root / "trials" / trial.name
     last = dict(result.metrics or {}) if result is not None else {}
@@ -376,9 +376,9 @@ def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> di
 
 def _write_results(out, trials, grid, finished, data, base_config, space, *, samples, seeds,
                    scheduler, metric, address) -> SweepResult:
-    from softpinn.learn.rundir import dataset_info
+    from softpinn.learn._rundir import dataset_info
 
-    from . import results as res
+    from softpinn.bridge.sweep import results as res
 
     root = out.resolve()
     rows = res.rank([_row(t, grid.get(t.name), t.name in finished, root, scheduler)

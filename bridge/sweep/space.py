@@ -1,7 +1,7 @@
 """What a sweep tries: the settings it varies (a grid of values, or random draws from a range)
-and the list of trials they make, each a :class:`learn.config.TrainConfig` checked up front.
+and the list of trials they make, each a :class:`learn._config.TrainConfig` checked up front.
 
-A setting is a field of :class:`learn.config.TrainConfig` (``TrainConfig.settings()``), spelled
+A setting is a field of :class:`learn._config.TrainConfig` (``TrainConfig.settings()``), spelled
 with ``_`` or ``-``; its values are read with the field's type. Random ranges are ``log:LOW:HIGH``
 (log-uniform), ``uniform:LOW:HIGH``, ``int:LOW:HIGH`` and ``logint:LOW:HIGH`` (integers, both ends
 included) and ``choice:A,B,...``. No Ray here: the trials are drawn before Ray is started, with
@@ -21,10 +21,10 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.learn.config import TrainConfig
-from softpinn.learn.errors import UserError as LearnError
+from softpinn.learn._config import TrainConfig
+from softpinn.errors import UserError as LearnError
 
-from ..errors import UserError
+from softpinn.errors import UserError
 
 #: Kinds of random ranges: ``KIND:LOW:HIGH`` (``choice:A,B,...``).
 RANDOM_KINDS = ("log", "uniform", "int", "logint", "choice")

@@ -1,5 +1,5 @@
 """One trial of a sweep as a Ray Tune :class:`ray.tune.Trainable`: a normal
-:func:`softpinn.learn.train.train` run writing its own run directory, reporting its test loss
+:func:`softpinn.learn._train.train` run writing its own run directory, reporting its test loss
 to Tune at every evaluation so that a scheduler (ASHA) can stop it early.
 
 This module imports Ray at the top: only :func:`softpinn.bridge.sweep.sweep` imports it, after
@@ -26,13 +26,13 @@ from ray import tune
 
 class Trial(tune.Trainable):
     """``config``: ``{"trial": NAME}``; ``specs``: NAME -> ``{"name", "config"
-    (TrainConfig.to_dict()), "dir", "force", "gpus"}``; ``data``: the :class:`learn.data.Dataset`
+    (TrainConfig.to_dict()), "dir", "force", "gpus"}``; ``data``: the :class:`learn._data.Dataset`
     (``data`` and ``specs`` go once through Ray's object store, so the nodes of a cluster need
     not see the file).
 
     An actor runs one trial after another (:meth:`reset_config`): the compiled training
     programs stay in its process, so trials that differ only in settings that are not compiled
-    in (lr, seed, patience, ...; see :class:`learn.programs.ProgramCache`) compile once."""
+    in (lr, seed, patience, ...; see :class:`learn._programs.ProgramCache`) compile once."""
 
     def setup(self, config, data=None, specs=None):
         self._data = data
@@ -76,9 +76,9 @@ class Trial(tune.Trainable):
             raise KeyboardInterrupt  # train() writes a loadable run, then re-raises
 
     def _work(self) -> None:
-        from softpinn.learn.config import TrainConfig
-        from softpinn.learn.ensemble import NonFiniteStart
-        from softpinn.learn.train import TrainingDiverged, train
+        from softpinn.learn._config import TrainConfig
+        from softpinn.learn._ensemble import NonFiniteStart
+        from softpinn.learn._train import TrainingDiverged, train
 
         spec = self._spec
         try:
@@ -90,7 +90,7 @@ class Trial(tune.Trainable):
             except NonFiniteStart:
                 raise
             except TrainingDiverged:
-                from softpinn.learn.checkpoint import read_json
+                from softpinn.learn._checkpoint import read_json
 
                 metrics = read_json(Path(spec["dir"]) / "metrics.json")
                 status = "diverged"

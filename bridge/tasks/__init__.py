@@ -2,9 +2,9 @@
 (:mod:`.plan`), the plan runs as resumable stages (:mod:`.stages`), and :func:`reproduce`
 (:mod:`.pipeline`) ties them together and writes the report."""
 
-from .pipeline import ReproduceResult, machine_description, notebook_run, reproduce
-from .plan import TASKS, Plan, ReproduceConfig, Variant, make_plan
-from .stages import variant_model
+from softpinn.bridge.tasks.pipeline import ReproduceResult, machine_description, notebook_run, reproduce
+from softpinn.bridge.tasks.plan import TASKS, Plan, ReproduceConfig, Variant, make_plan
+from softpinn.bridge.tasks.stages import variant_model
 
 __all__ = [
     "TASKS",

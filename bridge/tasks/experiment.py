@@ -7,7 +7,7 @@ stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the pa
 1. **data**: simulate the arm (the preset's physics and ``[data]``: four tendons given sinusoids,
    128 trajectories, the last 8 for test) at the highest rate of the study;
 2. **record**: the preset's ``[sensor]`` (an IMU: tip orientation with white noise and a drifting
-   bias, :mod:`symbolic.sensor`) records every trajectory at each rate of the study (``[data]
+   bias, :mod:`symbolic.spec._sensor`) records every trajectory at each rate of the study (``[data]
    rates``; the sensor's own ``rate_hz`` is the paper's, 5 Hz) and writes the CSV files
    ``softpinn import`` reads;
 3. **import**: each recording through ``softpinn import``'s library (orientation -> bending, the
@@ -40,11 +40,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from ...symbolic.recipe import LOSS_KEYS, MODEL_KEYS
-from .. import outputs
-from ..errors import UserError
-from . import parallel
-from .experiment_stages import (
+from softpinn.symbolic.spec._recipe import LOSS_KEYS, MODEL_KEYS
+from softpinn.bridge.base import outputs
+from softpinn.errors import UserError
+from softpinn.bridge.tasks import parallel
+from softpinn.bridge.tasks.experiment_stages import (
     rate_name,
     stage_bending,
     stage_import,
@@ -53,8 +53,8 @@ from .experiment_stages import (
     stage_simulate,
     stage_train,
 )
-from .plan import MIN_WIDTH, ReproduceConfig, substeps_for
-from .stages import Stages, write_json
+from softpinn.bridge.tasks.plan import MIN_WIDTH, ReproduceConfig, substeps_for
+from softpinn.bridge.tasks.stages import Stages, write_json
 
 #: The state is reset from the processed measurement this often in the long predictions [s]
 #: (the paper's Figs. 15, 17: "3 seconds state updating").
@@ -134,8 +134,8 @@ class ExperimentPlan:
 
 def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
     """The plan from the preset's ``[data]``, ``[sensor]`` and ``[training]`` tables."""
-    from softpinn.symbolic.datatable import data_config
-    from softpinn.symbolic.sensor import sensor_config
+    from softpinn.symbolic.simulation._datatable import data_config
+    from softpinn.symbolic.spec._sensor import sensor_config
 
     sensor = sensor_config(spec)
     recipe = spec.recipe
@@ -206,9 +206,9 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
     """Run the experiment end to end into ``out_dir`` (see the module docstring); returns
     ``(out, report, plan, results, seconds)``. ``machine`` describes the computer in the
     report."""
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.spec._spec import load_spec
 
-    from ..report.experiment import write_experiment_report
+    from softpinn.bridge.report.experiment import write_experiment_report
 
     out = outputs.claim(out_dir, "reproduce", force=force)
     t_start = time.perf_counter()
@@ -307,7 +307,7 @@ def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: 
 def _model_worker(config: ReproduceConfig, out: str, rate: float, prep: str,
                   kind: str) -> list[str]:
     """One model's stages in a ``--jobs`` worker (:mod:`.parallel`); returns the stages it ran."""
-    from softpinn.symbolic.spec import load_spec
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(config.task)
     plan = make_experiment_plan(spec, config)

@@ -22,8 +22,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from .plan import ReproduceConfig
-from .stages import Stages
+from softpinn.bridge.tasks.plan import ReproduceConfig
+from softpinn.bridge.tasks.stages import Stages
 
 __all__ = ["Probe", "run_in_worker", "run_models", "suggest_jobs", "unfinished"]
 
@@ -91,7 +91,7 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from ..report.figsave import draft_figures
+    from softpinn.bridge.figures.figsave import draft_figures
 
     stages = Stages(Path(out), lambda line: _QUEUE.put(("log", key, line)))
 

@@ -26,7 +26,7 @@ report then gives our errors in Table III's columns, with no paper rows.
 ``quick=True`` runs the same pipeline on small settings (few short trajectories, small nets,
 few epochs) in a minute or two; tests and notebooks use it. Full runs use the paper's network
 sizes and data, with our own, shorter training budgets (the recipe's ``[training.full.*]``
-tables, :mod:`symbolic.recipe`).
+tables, :mod:`symbolic.spec._recipe`).
 """
 
 
@@ -40,10 +40,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .. import outputs
-from . import parallel
-from .plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan, task_spec
-from .stages import (
+from softpinn.bridge.base import outputs
+from softpinn.bridge.tasks import parallel
+from softpinn.bridge.tasks.plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan, task_spec
+from softpinn.bridge.tasks.stages import (
     Stages,
     integration,
     stage_analyze,
@@ -79,11 +79,11 @@ def reproduce(
 ) -> ReproduceResult:
     """Run a paper task end to end into ``out_dir`` (see the module docstring). ``out_dir``
     may be new, empty or an earlier reproduce's (finished stages are reused); another non-empty
-    folder is refused unless ``force`` (:mod:`bridge.outputs`: nothing of the user's is
-    overwritten or removed). A quick run's figures are drafts (:mod:`bridge.report.figsave`)."""
+    folder is refused unless ``force`` (:mod:`bridge.base.outputs`: nothing of the user's is
+    overwritten or removed). A quick run's figures are drafts (:mod:`bridge.figures.figsave`)."""
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
-    from ..report.figsave import draft_figures
+    from softpinn.bridge.figures.figsave import draft_figures
 
     with draft_figures(config.quick):  # a quick run's figures are drafts (no print copies)
         return _reproduce(config, out_dir, log=log, progress=progress, force=force)
@@ -95,14 +95,14 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
     jax.config.update("jax_enable_x64", True)
     log = log or (lambda s: None)
     if config.task in CHALLENGES:  # the open challenges: studies of their own
-        from ..challenges.pipeline import run_challenges
+        from softpinn.bridge.challenges.pipeline import run_challenges
 
         out, report, results, seconds = run_challenges(
             out_dir, quick=config.quick, log=log, progress=progress, force=force,
             machine=machine_description())
         return ReproduceResult(config, out, report, None, results, seconds)
     if config.task in EXPERIMENTS:  # the paper's experiment: its own pipeline
-        from .experiment import run_experiment
+        from softpinn.bridge.tasks.experiment import run_experiment
 
         run = run_experiment(config, out_dir, log=log, progress=progress, force=force,
                              machine=machine_description())
@@ -144,7 +144,7 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
         time.perf_counter() - t_start - sum(
             v for k, v in stages.seconds.items() if k in stages.ran))
     results["stage_seconds"] = {k: v + credit.get(k, 0.0) for k, v in stages.seconds.items()}
-    from ..report import write_task_report
+    from softpinn.bridge.report import write_task_report
 
     t_report = time.perf_counter()
     figures = {v.name: figure_stage(spec, plan, stages, v.name, results["variants"][v.name][
@@ -207,8 +207,8 @@ def figure_stage(spec, plan: Plan, stages: Stages, vname: str, models: dict,
     lines that show them. Drawn again when a figure it drew is gone."""
     import re
 
-    from ..report.figsave import is_draft
-    from ..report.task_figures import _variant_figures
+    from softpinn.bridge.figures.figsave import is_draft
+    from softpinn.bridge.figures.task import _variant_figures
 
     name = f"draw/{vname}"
     settings = {"models": models, "draft": is_draft(), "animate": first}

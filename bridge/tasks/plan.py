@@ -1,5 +1,5 @@
 """The plan of a task run: what ``reproduce`` does with a spec, read from its recipe
-(``[training]``, :mod:`symbolic.recipe`) and ``[data]`` tables and the call's settings."""
+(``[training]``, :mod:`symbolic.spec._recipe`) and ``[data]`` tables and the call's settings."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from ...symbolic.recipe import MODEL_KEYS
-from ..errors import UserError
+from softpinn.symbolic.spec._recipe import MODEL_KEYS
+from softpinn.errors import UserError
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 #: studies ``reproduce`` runs with their own pipeline (the paper's experiment: .experiment)
@@ -38,7 +38,7 @@ def default_epochs(spec, data: Mapping[str, Any], kind: str, batch_size: int) ->
     :data:`DEFAULT_STEPS` optimizer steps on the training pairs the ``[data]`` table makes (the
     most of its rates), 20 to 1,000 epochs. A fixed count would make a run on a large data set
     of one's own take hours (1,000 epochs of 40,000 pairs: 625,000 steps)."""
-    from ...symbolic.datatable import data_config
+    from softpinn.symbolic.simulation._datatable import data_config
 
     cfg = data_config(spec, data)
     trajectories = cfg.train_trajectories or 1
@@ -61,12 +61,12 @@ def is_spec_file(task: str) -> bool:
 def task_spec(task: str, log=None):
     """The spec a ``reproduce`` of ``task`` runs: a preset, or a spec file of the user's. A spec
     without a ``[data]`` table gets the data ``softpinn simulate`` would draw for it, scaled to
-    its physics (:mod:`symbolic.defaults`; the summary line goes to ``log``)."""
-    from ...symbolic.spec import load_spec
+    its physics (:mod:`symbolic.simulation._defaults`; the summary line goes to ``log``)."""
+    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(task)
     if not spec.data:
-        from ...symbolic.defaults import physics_data_table
+        from softpinn.symbolic.simulation._defaults import physics_data_table
 
         table, summary = physics_data_table(spec)
         spec = dataclasses.replace(spec, data=table)
@@ -150,7 +150,7 @@ class Plan:
         return json.loads(json.dumps(dataclasses.asdict(self), default=list))
 
 
-#: [data]'s output rate [Hz] when it names none (symbolic.datatable's default)
+#: [data]'s output rate [Hz] when it names none (symbolic.simulation._datatable's default)
 DEFAULT_RATE = 100.0
 
 
@@ -175,7 +175,7 @@ def own_substeps(m: Mapping[str, Any], step: float) -> int:
 
 
 def make_plan(spec, config: ReproduceConfig) -> Plan:
-    """The plan of a task run from its spec's recipe (``[training]``, :mod:`symbolic.recipe`)
+    """The plan of a task run from its spec's recipe (``[training]``, :mod:`symbolic.spec._recipe`)
     and ``[data]`` tables, and the call's settings. A ``[data]`` table with ``rates`` gives one
     variant per rate (the black box on ``blackbox_rates`` only), and with ``fixed_step_dt`` one
     more on fixed-step RK4 data; otherwise one variant on the data as simulated."""

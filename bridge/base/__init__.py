@@ -1,0 +1,1 @@
+"""softpinn.bridge.base"""

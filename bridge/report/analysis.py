@@ -1,0 +1,223 @@
+"""The files of one analysis (:func:`bridge.analysis.analyze`): :func:`write_report` writes into
+one directory
+
+* ``report.md``: the summary of every transform and paper-shaped tables for the first q, the
+  force and acceleration terms along the data and what the data show of the inertia;
+* ``summary.{md,csv,tex}`` and ``table_<transform>.{md,csv,tex}`` (all q; Tables I, II, V-IX);
+* ``analysis.json``: every number (q, both sides' matrices, each transform's P, residuals...);
+* ``scatter.png`` (one row per transform), ``sweeps.png``, ``P_entries.png``, ``forces.png`` and
+  ``accelerations.png`` (:mod:`bridge.figures.matrices`);
+
+and :func:`summary_numbers` digests a result for a pipeline's results.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from softpinn.errors import UserError
+from softpinn.bridge.figures.matrices import (
+    plot_entries_scatter,
+    plot_forces,
+    plot_sweeps,
+    plot_transform_entries,
+)
+from softpinn.bridge.figures.tables import summary_table, to_markdown, transform_table, write_table
+from softpinn.bridge.analysis.compare import AnalysisResult
+from softpinn.bridge.analysis.excitation import markdown_lines as excitation_lines
+from softpinn.bridge.analysis.forces import markdown_lines as force_lines
+from softpinn.bridge.analysis.transform_result import Status, match_word
+from softpinn.bridge.analysis.transforms import to_jsonable
+
+__all__ = ["summary_numbers", "write_report"]
+
+def _table_matrices(result: AnalysisResult) -> tuple[str, ...]:
+    first = "M_inv" if result.learned_kind == "hamiltonian" else "M"
+    return (first, "D", "G", "A")
+
+
+def write_report(
+    result: AnalysisResult,
+    out_dir: str | Path,
+    *,
+    precision: int = 3,
+    max_table_q: int = 5,
+    plots: bool = True,
+    notes: list[str] | tuple[str, ...] = (),
+) -> dict[str, Path]:
+    """Write report.md, the tables (Markdown, CSV, LaTeX), analysis.json and the plots into
+    ``out_dir`` (created); returns the written paths by name. Files are replaced atomically.
+    ``notes``: paragraphs the report gives under its first line (e.g. that the "true" model is
+    a nominal one where the run learned from recordings)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"out: {str(out)!r} exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    paths: dict[str, Path] = {}
+    mats = _table_matrices(result)
+
+    summary = summary_table(result.results, caption="Matrix equivalence: every transform")
+    for ext, p in write_table(summary, out, "summary", precision=precision).items():
+        paths[f"summary.{ext}"] = p
+    tables = {}
+    for name, r in result.results.items():
+        res = None if name == "direct" else r
+        t = transform_table(
+            result.q, result.true, result.learned, res, matrices=mats,
+            caption=f"true vs learned matrices, transform {name}",
+        )  # fmt: skip
+        tables[name] = t
+        for ext, p in write_table(t, out, f"table_{name}", precision=precision).items():
+            paths[f"table_{name}.{ext}"] = p
+
+    json_path = out / "analysis.json"
+    _write_text(json_path, json.dumps(result.to_dict(), indent=1, allow_nan=False))
+    paths["analysis.json"] = json_path
+
+    if plots:
+        p = out / "scatter.png"
+        plot_entries_scatter(result.true, result.learned, _scatter_rows(result), matrices=mats,
+                             path=p)
+        paths[p.name] = p
+        if result.sweeps is not None:
+            p = out / "sweeps.png"
+            plot_sweeps(result.sweeps, path=p)
+            paths[p.name] = p
+        p = out / "P_entries.png"
+        spread = np.ptp(np.asarray(result.q, float), axis=0)
+        widest = int(np.argmax(spread)) if len(result.q) > 1 else None
+        names = result.meta.get("coordinates")
+        label = None
+        if widest is not None and names:
+            from softpinn.learn.plots import coordinate_unit
+
+            unit = coordinate_unit(names[widest], result.meta.get("model_kind"))
+            label = f"{names[widest]} [{unit}]" if unit else names[widest]
+        plot_transform_entries(result.q, result.results, path=p, coordinate=widest,
+                               coordinate_label=label)
+        paths[p.name] = p
+        for name, comp in (("forces.png", result.forces),
+                           ("accelerations.png", result.accelerations)):
+            if comp is not None and comp.terms:
+                plot_forces(comp, path=out / name)
+                paths[name] = out / name
+
+    k = min(max_table_q, len(result.q))
+    lines = [
+        "# Matrix-equivalence analysis",
+        "",
+        f"True model `{result.meta.get('true_model')}`, learned model kind "
+        f"`{result.learned_kind}`; N = {result.true.N} configurations, n = {result.true.n}, "
+        f"m = {result.true.m}.",
+        "",
+        *(x for note in notes for x in (note, "")),
+        "Relative residual of each matrix in percent, `||P X^ - X||_F / ||X||_F` over all q; "
+        "`fit`: whether the transform's least squares went well (`ok`, or why not); `match`: "
+        "what the total residual means (`recovered` <= 3 %, `approximate` <= 15 %, else `not "
+        "recovered`); `c`: the multiple of I nearest to P (`alpha = 1/c`, learned ~= alpha * "
+        "true), `distance`: `||P - cI||_F / ||P||_F`.",
+        "",
+        to_markdown(summary, precision=precision),
+    ]
+    for name, r in result.results.items():
+        fit = "ok" if r.status == Status.SUCCESS else f"`{r.status}`"
+        total = ("undefined" if r.residual_total is None or not np.isfinite(r.residual_total)
+                 else f"{100 * r.residual_total:.2f} %")
+        lines += [f"## {name}", "", f"{r.message}. Fit {fit}; total residual {total}: "
+                  f"{match_word(r.residual_total)}.", ""]
+        if name == "alpha":
+            lines += [f"alpha = {r.params['alpha']:.6g}", ""]
+        if name == "smooth":
+            held = {m: f"{v:.3g}" for m, v in r.params["residual_heldout"].items()}
+            lines += [f"held-out residuals: {held}", ""]
+        lines += [
+            f"First {k} of {len(result.q)} q (all q in `table_{name}.csv`):",
+            "",
+            to_markdown(_first_q(tables[name], k), precision=precision),
+        ]
+    for name, comp in (("forces.png", result.forces), ("accelerations.png", result.accelerations)):
+        if comp is not None:
+            lines += force_lines(comp.to_dict())
+            if name in paths:
+                lines += [f"![{comp.frame} terms, true against learned]({name})", ""]
+    if result.excitation is not None:
+        lines += excitation_lines(result.excitation, result.meta.get("coordinates"))
+    if plots:
+        lines += [
+            "## Entries: true against learned (the direct comparison where it applies) and "
+            "against the best transform's P(q) times learned",
+            "",
+            "![scatter](scatter.png)",
+            "",
+        ]
+        if "sweeps.png" in paths:
+            how = ("directly" if result.sweeps.transform == "direct" else
+                   f"times c = 1/α = {result.sweeps.scale:.4g} (M⁻¹ divided by it)")
+            lines += [
+                "## Along sweeps of q: each coordinate over the configurations' range, the "
+                "others at their median",
+                "",
+                f"True solid, learned dashed, compared {how}.",
+                "",
+                "![sweeps](sweeps.png)",
+                "",
+            ]
+        lines += [
+            "## P(q) over the sampled q, along the coordinate that varies most",
+            "",
+            "![P entries](P_entries.png)",
+            "",
+        ]
+    report = out / "report.md"
+    _write_text(report, "\n".join(lines))
+    paths["report.md"] = report
+    return paths
+
+
+def _scatter_rows(result) -> dict:
+    """The rows of the entries scatter: the direct comparison (None: learned as it is) where it
+    was made, and the transform with the smallest total residual (pointwise only if it is the
+    only one: it explains M exactly by construction)."""
+    rows = {"direct": None} if "direct" in result.results else {}
+    fits = {n: r for n, r in result.results.items() if n != "direct"}
+    others = {n: r for n, r in fits.items() if n != "pointwise"} or fits
+    if others:
+        key = lambda n: (others[n].residual_total if others[n].residual_total is not None  # noqa: E731
+                         and np.isfinite(others[n].residual_total) else np.inf)
+        best = min(others, key=key)
+        rows[best] = others[best]
+    return rows or {None: None}
+
+
+def _first_q(table, k):
+    from softpinn.bridge.figures.tables import Table
+
+    rows = table.rows[: k * table.block_rows] if table.block_rows else table.rows[:k]
+    return Table(table.spans, rows, block_rows=table.block_rows)
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text, "utf-8")
+    tmp.replace(path)
+
+
+def summary_numbers(result: AnalysisResult) -> dict[str, Any]:
+    """A compact JSON-ready digest: per transform, status, residuals, alpha and distance."""
+    out = {}
+    for name, r in result.results.items():
+        d = {
+            "status": str(r.status),
+            "residual": dict(r.residual),
+            "residual_total": r.residual_total,
+            "alpha": r.alpha,
+            "distance_from_alpha_I": r.distance_all,
+        }
+        if name == "smooth":
+            d["residual_heldout"] = dict(r.params["residual_heldout"])
+        out[name] = d
+    return to_jsonable(out)

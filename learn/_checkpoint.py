@@ -1,0 +1,303 @@
+"""Run directories and checkpoints, written atomically.
+
+Every file is written to a temporary file in the same directory and installed with
+``os.replace``, so an interrupted run always leaves the last complete version of each file.
+Training state that must stay consistent (parameters, optimizer state, best parameters, epoch,
+history) lives in ONE file, ``checkpoint.eqx``: a JSON header line followed by the Equinox
+serialised leaves (``eqx.tree_serialise_leaves``), the pattern of Equinox's serialisation example.
+
+Integrity: the header of every ``.eqx`` file carries the sha256 of its leaves (and of the rest
+of the header), checked when the file is read, so that a corrupted model or checkpoint is refused
+with one line instead of loading garbage. Every file written into a run directory is listed in
+its ``manifest.json`` (name -> sha256) before it is written; ``--force`` removes only those.
+JSON files never hold NaN or Infinity: non-finite numbers are written as null.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+
+from softpinn.errors import UserError
+
+#: The list of files softpinn wrote into a run directory (name -> sha256).
+MANIFEST = "manifest.json"
+#: Files a run directory written before the manifest existed may hold (``--force`` removes only
+#: these and member folders when a run has no manifest).
+RUN_FILES = (
+    "config.json",
+    "model.eqx",
+    "checkpoint.eqx",
+    "history.csv",
+    "metrics.json",
+    "loss.png",
+    MANIFEST,
+)
+MEMBER_PREFIX = "seed-"
+
+
+def cannot_write(path: Path, exc: OSError) -> UserError:
+    """The one-line error for a file or folder that cannot be written (inside a file, no
+    permission, disk full, ...)."""
+    return UserError(f"{path}: cannot write there ({exc.strerror or exc})")
+
+
+def _umask() -> int:
+    """The process's file-creation mask (read by setting it and setting it back)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def atomic_write_bytes(path: str | Path, data: bytes, *, record: bool = False) -> Path:
+    """Write ``data`` to ``path`` through a temporary file and ``os.replace``.
+
+    ``record``: list the file in the ``manifest.json`` of its folder (run directories)."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if record:
+            _record(path, data)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise cannot_write(path, exc) from None
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp's 0600 would hide runs from colleagues
+        os.replace(tmp, path)
+    except BaseException as exc:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        if isinstance(exc, OSError):
+            raise cannot_write(path, exc) from None
+        raise
+    return path
+
+
+def _record(path: Path, data: bytes) -> None:
+    """Add ``path`` (with the sha256 of ``data``) to its folder's manifest, BEFORE the file is
+    written: a file that exists was always listed first."""
+    mpath = path.parent / MANIFEST
+    files = read_manifest(path.parent) or {}
+    files[path.name] = hashlib.sha256(data).hexdigest()
+    text = json.dumps({"format": "softpinn-manifest", "files": files}, indent=2) + "\n"
+    atomic_write_bytes(mpath, text.encode("utf-8"))
+
+
+def read_manifest(folder: str | Path) -> dict[str, str] | None:
+    """``{name: sha256}`` of the files softpinn wrote into ``folder`` (None: no manifest)."""
+    mpath = Path(folder) / MANIFEST
+    if not mpath.is_file():
+        return None
+    try:
+        files = json.loads(mpath.read_text())["files"]
+    except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+        raise UserError(f"{mpath}: not a softpinn manifest") from None
+    if not isinstance(files, dict):
+        raise UserError(f"{mpath}: not a softpinn manifest")
+    return files
+
+
+def atomic_write_text(path: str | Path, text: str, *, record: bool = False) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"), record=record)
+
+
+def finite_json(obj: Any) -> Any:
+    """``obj`` with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
+    if isinstance(obj, dict):
+        return {k: finite_json(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [finite_json(v) for v in obj]
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def atomic_write_json(path: str | Path, obj: Any, *, record: bool = False) -> Path:
+    """Strict JSON (non-finite numbers as null), written atomically."""
+    text = json.dumps(finite_json(obj), indent=2, sort_keys=False, allow_nan=False) + "\n"
+    return atomic_write_text(path, text, record=record)
+
+
+def read_json(path: str | Path) -> Any:
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise UserError(f"{path}: not valid JSON ({exc})") from None
+
+
+def _digest(header: dict, payload: bytes) -> str:
+    """sha256 of the header (without its digest, keys sorted) and the serialised leaves."""
+    h = hashlib.sha256(json.dumps(header, sort_keys=True).encode("utf-8"))
+    h.update(payload)
+    return h.hexdigest()
+
+
+def tree_to_bytes(tree, header: dict | None = None) -> bytes:
+    """A JSON header line followed by the serialised leaves; the header carries ``sha256``,
+    the digest of the rest of the header and of the leaves."""
+    leaves = io.BytesIO()
+    eqx.tree_serialise_leaves(leaves, tree)
+    payload = leaves.getvalue()
+    header = dict(header or {})
+    header.pop("sha256", None)
+    head = {**header, "sha256": _digest(header, payload)}
+    return (json.dumps(head) + "\n").encode("utf-8") + payload
+
+
+def save_tree(path: str | Path, tree, header: dict | None = None, *, record: bool = False
+              ) -> Path:
+    """Atomically write ``tree`` (any pytree of arrays) with an optional JSON ``header``."""
+    return atomic_write_bytes(path, tree_to_bytes(tree, header), record=record)
+
+
+def read_header(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            header = json.loads(f.readline().decode("utf-8"))
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise UserError(f"{path}: not a softpinn checkpoint (bad header)") from None
+    if not isinstance(header, dict):
+        raise UserError(f"{path}: not a softpinn checkpoint (bad header)")
+    header.pop("sha256", None)
+    return header
+
+
+def load_tree(path: str | Path, like):
+    """Read a file written by :func:`save_tree`; ``like`` gives the structure, shapes, dtypes.
+
+    Returns ``(header, tree)``.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            header = json.loads(f.readline().decode("utf-8"))
+            payload = f.read()
+    except FileNotFoundError:
+        raise UserError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise UserError(f"{path}: not a softpinn checkpoint (bad header)") from None
+    if not isinstance(header, dict):
+        raise UserError(f"{path}: not a softpinn checkpoint (bad header)")
+    stored = header.pop("sha256", None)  # files written before checksums have none
+    if stored is not None and stored != _digest(header, payload):
+        raise UserError(
+            f"{path}: checksum mismatch, the file is corrupted (sha256 of its content differs "
+            "from the one stored in it); retrain, or resume from an intact checkpoint"
+        )
+    try:
+        tree = eqx.tree_deserialise_leaves(io.BytesIO(payload), like)
+    except (RuntimeError, ValueError, OSError) as exc:
+        raise UserError(f"{path}: does not match the model in config.json ({exc})") from None
+    return header, tree
+
+
+def write_history(path: str | Path, rows: list[dict], *, record: bool = False) -> Path:
+    """``history.csv``: epoch, train_loss, test_loss, seconds, phase."""
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["epoch", "train_loss", "test_loss", "seconds", "phase"])
+    for r in rows:
+        w.writerow(
+            [
+                r["epoch"],
+                repr(float(r["train_loss"])),
+                repr(float(r["test_loss"])),
+                f"{r['seconds']:.3f}",
+                r.get("phase", "adamw"),
+            ]
+        )
+    return atomic_write_text(path, buf.getvalue(), record=record)
+
+
+def read_history(path: str | Path) -> list[dict]:
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    return [
+        {
+            "epoch": int(r["epoch"]),
+            "train_loss": float(r["train_loss"]),
+            "test_loss": float(r["test_loss"]),
+            "seconds": float(r["seconds"]),
+            "phase": r.get("phase", "adamw"),
+        }
+        for r in rows
+    ]
+
+
+def check_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
+    """The refusals of :func:`prepare_run_dir`, without writing or removing anything (so that a
+    command can give them before its work starts)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"run directory {out} is a file")
+    if not out.exists():
+        for parent in out.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise UserError(f"run directory {out}: {parent} is a file, not a folder")
+                break
+    if resume:
+        if not (out / "config.json").is_file():
+            raise UserError(f"--resume: {out} holds no run to resume (no config.json)")
+        return out
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise UserError(
+            f"run directory {out} already exists and is not empty; "
+            "use --force to overwrite it or --resume to continue it"
+        )
+    return out
+
+
+def prepare_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
+    """Make sure ``out_dir`` may be written.
+
+    A directory that holds anything is refused unless ``resume`` (continue it) or ``force``
+    (remove the files its manifest lists, i.e. those softpinn wrote, and member folders; a run
+    without a manifest loses only the names in :data:`RUN_FILES`; nothing else is deleted).
+    """
+    out = check_run_dir(out_dir, force=force, resume=resume)
+    if resume:
+        return out
+    if out.is_dir() and any(out.iterdir()):
+        for p in out.glob(MEMBER_PREFIX + "*"):
+            if p.is_dir() and (p / "config.json").exists():
+                remove_written(p)
+        remove_written(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise cannot_write(out, exc) from None
+    return out
+
+
+def remove_written(folder: Path) -> None:
+    """Remove the files softpinn wrote into ``folder`` (its manifest's, else :data:`RUN_FILES`),
+    the manifest last, and the folder itself if that leaves it empty and it is a member folder."""
+    files = read_manifest(folder)
+    names = list(RUN_FILES) if files is None else [n for n in files if n != MANIFEST]
+    for name in names:
+        if "/" in name or name in ("", ".", ".."):
+            continue
+        (folder / name).unlink(missing_ok=True)
+    (folder / MANIFEST).unlink(missing_ok=True)
+    if folder.name.startswith(MEMBER_PREFIX) and not any(folder.iterdir()):
+        folder.rmdir()

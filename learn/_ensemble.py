@@ -1,0 +1,446 @@
+"""The ensemble engine: K seeds trained as one stacked model (or one after another), with
+checkpoints, NaN rollback, deferred interrupts (Ctrl-C finishes the epoch and saves) and early
+stopping; :func:`finish_member` writes each member's model, history and metrics."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from softpinn.learn import _checkpoint as ckpt
+from softpinn.errors import UserError
+from softpinn.learn._models import make_model
+from softpinn.learn._programs import Programs, select_members, stack, unstack
+from softpinn.learn._rundir import loss_plot, member_dir
+
+
+class TrainingDiverged(UserError):
+    """The loss became NaN or inf; the last good checkpoint is kept."""
+
+
+class NonFiniteStart(TrainingDiverged):
+    """The untrained model's loss is already NaN or inf: nothing can be trained (a fresh run
+    leaves no files behind)."""
+
+
+@dataclass
+class MemberResult:
+    """The outcome of one seed: its run directory, best model and figures."""
+
+    seed: int
+    run_dir: Path
+    model: Any
+    metrics: dict
+    history: list[dict] = field(repr=False)
+
+
+# ---------------------------------------------------------------------------------- engine
+
+
+class DeferredInterrupt:
+    """While training, the first Ctrl-C (SIGINT) lets the current epoch finish, then the loop
+    saves a checkpoint and raises KeyboardInterrupt; a second one interrupts at once. Only in the
+    main thread (elsewhere signal handlers cannot be set, and Ctrl-C raises as usual)."""
+
+    def __init__(self):
+        self.requested = False
+        self._old = None
+
+    def _handler(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self):
+        import signal
+        import threading
+
+        if threading.current_thread() is threading.main_thread():
+            try:
+                self._old = signal.signal(signal.SIGINT, self._handler)
+            except (ValueError, OSError):
+                self._old = None
+        return self
+
+    def __exit__(self, *exc):
+        import signal
+
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+        return False
+
+
+class MemberGroup:
+    """K members trained together as one stacked model (K = 1 for a single run)."""
+
+    def __init__(self, prog: Programs, seeds, ckpt_path: Path, header_base: dict):
+        self.prog = prog
+        self.seeds = list(seeds)
+        self.K = len(self.seeds)
+        self.ckpt_path = ckpt_path
+        self.header_base = header_base
+        cfg = prog.config
+        if cfg.init is not None:
+            models = [initial_model(cfg.init, cfg.model)] * self.K
+        else:
+            models = [make_model(cfg.model, key=jax.random.PRNGKey(s)) for s in self.seeds]
+        self.params = stack([eqx.filter(m, eqx.is_array) for m in models])
+        self.opt_state = prog.init_opt(self.params)
+        self.best = self.params
+        self.keys = jnp.stack([jax.random.fold_in(jax.random.PRNGKey(s), 1) for s in self.seeds])
+        self.epoch = 0  # epochs completed
+        self.best_loss = np.full(self.K, np.inf)
+        self.best_epoch = np.zeros(self.K, dtype=int)
+        self.bad = np.zeros(self.K, dtype=int)
+        self.over = np.zeros(self.K, dtype=int)  # evaluations in a row above overfit x best
+        self.active = np.ones(self.K, dtype=bool)
+        self.stopped = ["running"] * self.K
+        self.history: list[list[dict]] = [[] for _ in range(self.K)]
+        self.seconds = 0.0
+        self.adam_done = False
+        self.lbfgs_done = 0
+
+    # -- checkpoint
+    def _tree(self):
+        return (self.params, self.opt_state, self.best)
+
+    def header(self) -> dict:
+        return {
+            **self.header_base,
+            "seeds": self.seeds,
+            "epoch": self.epoch,
+            "best_loss": [float(x) for x in self.best_loss],
+            "best_epoch": self.best_epoch.tolist(),
+            "bad": self.bad.tolist(),
+            "over": self.over.tolist(),
+            "active": self.active.tolist(),
+            "stopped": self.stopped,
+            "history": self.history,
+            "seconds": self.seconds,
+            "adam_done": self.adam_done,
+            "lbfgs_done": self.lbfgs_done,
+        }
+
+    def save(self):
+        ckpt.save_tree(self.ckpt_path, self._tree(), self.header(), record=True)
+
+    def restore(self):
+        header, tree = ckpt.load_tree(self.ckpt_path, self._tree())
+        if header.get("seeds") != self.seeds:
+            raise UserError(
+                f"{self.ckpt_path}: checkpoint holds seeds {header.get('seeds')}, "
+                f"expected {self.seeds}"
+            )
+        self.params, self.opt_state, self.best = tree
+        self.epoch = int(header["epoch"])
+        self.best_loss = np.array(header["best_loss"], dtype=float)
+        self.best_epoch = np.array(header["best_epoch"], dtype=int)
+        self.bad = np.array(header["bad"], dtype=int)
+        self.over = np.array(header.get("over", [0] * self.K), dtype=int)
+        self.active = np.array(header["active"], dtype=bool)
+        self.stopped = list(header["stopped"])
+        self.history = header["history"]
+        self.seconds = float(header["seconds"])
+        self.adam_done = bool(header["adam_done"])
+        self.lbfgs_done = int(header["lbfgs_done"])
+        self._reopen()
+
+    def _reopen(self):
+        """A resumed run asked for more epochs than it finished: the members that completed
+        their epochs train on (early-stopped and diverged ones stay stopped)."""
+        cfg = self.prog.config
+        if not (self.adam_done and self.epoch < cfg.epochs):
+            return
+        done = [k for k in range(self.K) if self.stopped[k].startswith("completed")]
+        if not done:
+            return
+        if self.lbfgs_done:
+            raise UserError(
+                f"epochs: the run in {self.ckpt_path.parent} ended with {self.lbfgs_done} L-BFGS "
+                f"iterations after {self.epoch} epochs; AdamW cannot continue after them "
+                "(train a new run for more epochs)"
+            )
+        for k in done:
+            self.active[k] = True
+            self.stopped[k] = "running"
+        self.adam_done = False
+
+    @property
+    def finished(self) -> bool:
+        return self.adam_done and self.lbfgs_done >= self.prog.config.lbfgs_steps
+
+    # -- bookkeeping shared by both phases
+    def _record(self, epoch, train_loss, test_loss, phase, evaluate, params_prev, opt_prev):
+        """Update best/patience/history after a step; roll back diverged members."""
+        cfg = self.prog.config
+        was_active = self.active.copy()
+        train_loss = np.asarray(train_loss, dtype=float)
+        test_loss = np.asarray(test_loss, dtype=float) if evaluate else None
+        bad_now = self.active & ~np.isfinite(train_loss)
+        if test_loss is not None:
+            bad_now |= self.active & ~np.isfinite(test_loss)
+        if bad_now.any():
+            mask = jnp.asarray(bad_now)
+            self.params = select_members(mask, params_prev, self.params)
+            self.opt_state = select_members(mask, opt_prev, self.opt_state)
+            for k in np.flatnonzero(bad_now):
+                self.stopped[k] = f"diverged at epoch {epoch} ({phase})"
+            self.active = self.active & ~bad_now
+        if test_loss is not None:
+            improved = self.active & (test_loss < self.best_loss)
+            if improved.any():
+                self.best = select_members(jnp.asarray(improved), self.params, self.best)
+            self.best_loss = np.where(improved, test_loss, self.best_loss)
+            self.best_epoch = np.where(improved, epoch, self.best_epoch)
+            if phase == "adamw":
+                self.bad = np.where(improved, 0, self.bad + self.active)
+                if cfg.patience is not None:
+                    out = self.active & (self.bad >= cfg.patience)
+                    for k in np.flatnonzero(out):
+                        self.stopped[k] = f"early stop at epoch {epoch} (patience {cfg.patience})"
+                    self.active = self.active & ~out
+                if cfg.overfit is not None:
+                    above = self.active & (test_loss > cfg.overfit * self.best_loss)
+                    self.over = np.where(above, self.over + 1, 0)
+                    out = self.active & (self.over >= cfg.overfit_evals)
+                    for k in np.flatnonzero(out):
+                        self.stopped[k] = (
+                            f"early stop at epoch {epoch} (overfit: test loss above "
+                            f"{cfg.overfit:g}x its best, {self.best_loss[k]:.4g} at epoch "
+                            f"{self.best_epoch[k]}, for {cfg.overfit_evals} evaluations)")
+                    self.active = self.active & ~out
+            if cfg.target_loss is not None:
+                out = self.active & (test_loss <= cfg.target_loss)
+                for k in np.flatnonzero(out):
+                    self.stopped[k] = (f"reached test loss {test_loss[k]:.4g} <= "
+                                       f"{cfg.target_loss:g} at epoch {epoch} ({phase})")
+                self.active = self.active & ~out
+        for k in range(self.K):
+            if bad_now[k] or not was_active[k]:
+                continue
+            if test_loss is not None:
+                self.history[k].append(
+                    {
+                        "epoch": int(epoch),
+                        "train_loss": float(train_loss[k]),
+                        "test_loss": float(test_loss[k]),
+                        "seconds": round(self.seconds, 3),
+                        "phase": phase,
+                    }
+                )
+        return bad_now
+
+    def run(self, progress: Callable | None, label: str):
+        with DeferredInterrupt() as stop:
+            self._run(progress, label, stop)
+
+    def _run(self, progress, label, stop):
+        cfg = self.prog.config
+        prog = self.prog
+        t_last = time.perf_counter()
+        self.consistent = True
+        try:
+            if self.epoch == 0 and not any(self.history):
+                # epoch 0: the untrained model, on the full training and test sets
+                tr0 = np.asarray(prog.eval_train_fn(self.params))
+                te0 = np.asarray(prog.eval_fn(self.params))
+                bad0 = self._record(0, tr0, te0, "adamw", True, self.params, self.opt_state)
+                if bad0.any():
+                    raise NonFiniteStart(self._non_finite_start_message(tr0, te0, bad0))
+                if progress is not None:
+                    progress(self._progress_info(label, 0, tr0, te0, "adamw"))
+            while not self.adam_done and self.epoch < cfg.epochs and self.active.any():
+                if stop.requested:
+                    raise KeyboardInterrupt
+                e = self.epoch + 1
+                prev_p, prev_s = self.params, self.opt_state
+                new_p, new_s, tr = prog.epoch_fn(
+                    self.params, self.opt_state, self.keys, self.epoch, jnp.asarray(self.active)
+                )
+                evaluate = e % cfg.eval_every == 0 or e == cfg.epochs
+                te = prog.eval_fn(new_p) if evaluate else None
+                tr = np.asarray(tr)
+                te = None if te is None else np.asarray(te)
+                now = time.perf_counter()
+                # commit the epoch: the state is inconsistent until epoch = e
+                self.consistent = False
+                self.seconds += now - t_last
+                t_last = now
+                self.params, self.opt_state = new_p, new_s
+                bad_now = self._record(e, tr, te, "adamw", evaluate, prev_p, prev_s)
+                self.epoch = e
+                self.consistent = True
+                if bad_now.any():
+                    self.save()
+                    raise TrainingDiverged(self._diverged_message())
+                if progress is not None:
+                    progress(self._progress_info(label, e, tr, te, "adamw"))
+                if e % cfg.checkpoint_every == 0:
+                    self.save()
+            if not self.adam_done:
+                for k in range(self.K):
+                    if self.stopped[k] == "running":
+                        self.stopped[k] = f"completed {self.epoch} epochs"
+                self.adam_done = True
+                self.save()
+            if cfg.lbfgs_steps > self.lbfgs_done:
+                self._run_lbfgs(progress, label, stop)
+        except KeyboardInterrupt:
+            # save the last completed epoch; a second Ctrl-C in the middle of committing one
+            # leaves the previous checkpoint on disk
+            if self.consistent:
+                self.save()
+            raise
+
+    def _run_lbfgs(self, progress, label, stop):
+        cfg, prog = self.prog.config, self.prog
+        # an interrupted L-BFGS phase restarts from the best parameters so far
+        self.history = [[r for r in h if r["phase"] != "lbfgs"] for h in self.history]
+        # start from the best AdamW parameters of every member that did not diverge or reach
+        # the target test loss already
+        ok = np.array([not s.startswith(("diverged", "reached")) for s in self.stopped])
+        self.params = self.best
+        state = prog.lbfgs_init(self.params)
+        active = ok.copy()
+        t_last = time.perf_counter()
+        done = 0
+        while done < cfg.lbfgs_steps and active.any():
+            if stop.requested:
+                raise KeyboardInterrupt
+            prev_p = self.params
+            self.params, state, tr = prog.lbfgs_fn(self.params, state, jnp.asarray(active))
+            done += cfg.lbfgs_chunk
+            te = np.asarray(prog.eval_fn(self.params))
+            tr = np.asarray(tr)
+            now = time.perf_counter()
+            self.seconds += now - t_last
+            t_last = now
+            self.active = active
+            epoch = self.epoch + done // cfg.lbfgs_chunk
+            self._record(epoch, tr, te, "lbfgs", True, prev_p, prev_p)
+            active = self.active.copy()  # less the diverged and those at the target loss
+            if progress is not None:
+                progress(self._progress_info(label, epoch, tr, te, "lbfgs", lbfgs_done=done))
+        self.active = np.zeros(self.K, dtype=bool)
+        self.lbfgs_done = cfg.lbfgs_steps
+        self.save()
+
+    def _diverged_message(self) -> str:
+        which = [
+            f"seed {s}: {st}"
+            for s, st in zip(self.seeds, self.stopped, strict=True)
+            if st.startswith("diverged")
+        ]
+        return (
+            f"training stopped: the loss became NaN/inf ({'; '.join(which)}); "
+            f"the last good checkpoint is kept in {self.ckpt_path.parent}; "
+            "try a smaller lr, or float64 if the model is float32"
+        )
+
+    def _non_finite_start_message(self, tr0, te0, bad0) -> str:
+        which = [
+            f"seed {s}: train loss {tr0[k]:.3g}, test loss {te0[k]:.3g}"
+            for k, s in enumerate(self.seeds)
+            if bad0[k]
+        ]
+        return (
+            "training cannot start: the untrained model's loss is not finite "
+            f"({'; '.join(which)}); "
+            "check the data's scale (values near 1e150 or more overflow the loss) and the model "
+            "settings (eps, mass_init)"
+        )
+
+    def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None):
+        return {
+            "label": label,
+            "seeds": self.seeds,
+            "epoch": int(epoch),
+            "epochs": self.prog.config.epochs,
+            "phase": phase,
+            "lbfgs_steps": self.prog.config.lbfgs_steps,
+            "lbfgs_done": lbfgs_done,
+            "train_loss": [float(x) for x in tr],
+            "test_loss": None if te is None else [float(x) for x in te],
+            "best_test_loss": [float(x) for x in self.best_loss],
+            "active": self.active.tolist(),
+            "seconds": self.seconds,
+        }
+
+    def member_model(self, k: int):
+        return eqx.combine(unstack(self.best, k), self.prog.static)
+
+
+
+def initial_model(run_dir: str, model_config):
+    """The best model of the run in ``run_dir`` (``TrainConfig.init``), which must have the
+    network ``model_config``."""
+    from softpinn.learn._rundir import load_run
+
+    if not Path(run_dir).is_dir():
+        raise UserError(f"init: {run_dir} is not a run folder")
+    run = load_run(run_dir)
+    theirs, ours = _network_of(run.model_config), _network_of(model_config)
+    if theirs != ours:
+        diff = sorted(k for k in ours if theirs.get(k) != ours[k])
+        raise UserError(f"init: the run in {run_dir} has another network (differs in "
+                        f"{', '.join(diff)})")
+    if run.model_config == model_config:
+        return run.model
+    # the same network under this run's configuration (a size it does not use differs): its
+    # parameters in the structure of a model built from model_config
+    shape = jax.tree_util.tree_structure(make_model(model_config, key=jax.random.PRNGKey(0)))
+    leaves = jax.tree_util.tree_leaves(run.model)
+    if shape.num_leaves != len(leaves):  # not expected: the networks compared equal
+        raise UserError(f"init: the run in {run_dir} has another network")
+    return jax.tree_util.tree_unflatten(shape, leaves)
+
+
+def _network_of(model_config) -> dict:
+    """The settings that make the network: a physics model's ignore the black box's size
+    (``hidden``) and a black box's the physics networks' sizes."""
+    d = model_config.to_dict()
+    unused = (("mass", "potential", "damping", "input") if d.get("kind") == "blackbox"
+              else ("hidden",))
+    return {k: v for k, v in d.items() if k not in unused}
+
+
+def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
+                  interrupted: bool = False) -> MemberResult:
+    """Write member k's best model, history and metrics; ``interrupted``: the run stops here
+    on Ctrl-C, and a member still training says so ("interrupted at epoch E")."""
+    mdir = member_dir(run_dir, seed, K)
+    model = g.member_model(k)
+    hist = g.history[k]
+    last = hist[-1] if hist else {"train_loss": float("nan"), "test_loss": float("nan")}
+    metrics = {
+        "seed": seed,
+        "best_test_loss": float(g.best_loss[k]),
+        "best_epoch": int(g.best_epoch[k]),
+        "final_train_loss": last["train_loss"],
+        "final_test_loss": last["test_loss"],
+        "epochs_run": int(g.epoch),
+        "lbfgs_steps": int(g.lbfgs_done),
+        "stopped": g.stopped[k],
+        "seconds": round(g.seconds, 3),
+        "train_pairs": n_train,
+        "test_pairs": n_test,
+    }
+    if interrupted and g.stopped[k] == "running":
+        lbfgs = f" + {int(g.lbfgs_done)} L-BFGS iterations" if g.lbfgs_done else ""
+        metrics["stopped"] = f"interrupted at epoch {int(g.epoch)}{lbfgs} (--resume continues)"
+    ckpt.save_tree(mdir / "model.eqx", eqx.filter(model, eqx.is_array), {"seed": seed},
+                   record=True)
+    ckpt.write_history(mdir / "history.csv", hist, record=True)
+    ckpt.atomic_write_json(mdir / "metrics.json", metrics, record=True)
+    loss_plot(mdir, [hist], None)
+    return MemberResult(seed=seed, run_dir=mdir, model=model, metrics=metrics, history=hist)
+
+

@@ -1,0 +1,1 @@
+"""softpinn.symbolic.derivation"""

@@ -1,0 +1,1 @@
+"""softpinn.symbolic.model._true_model"""

@@ -1,0 +1,1 @@
+"""softpinn.symbolic.recorded._csv"""
