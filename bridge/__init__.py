@@ -1,24 +1,40 @@
-"""Where the symbolic ground truth meets the learned models.
+"""Where the symbolic ground truth meets the learned models: comparisons, studies, reports,
+deployment and the command line. The layers, from the bottom (``docs/architecture.md``):
 
-Data flow (each box a subpackage; arrows are calls)::
+    base ─► exact ─► analysis ─► figures ─► export ─► control ─► tasks ─► challenges, sweep
+         ─► report ─► app ─► cli
 
-    spec.toml ──► softpinn.symbolic ──► dataset.npz ──► softpinn.learn ──► run directory
-      │ [training] recipe        (simulate)                 (train)              │
-      ▼                                                                          ▼
-    tasks/  plan ─► stages: data ─► train ─► predict ─► floor ─► modes ─► analyze ─► report/
-                                                                    │
-    analysis/  true (CasADi) and learned (JAX) M, D, G, A at the same q; transforms P(q);
-               force terms and accelerations along the data; time scales; floors
-    report/    paper-shaped tables, figures, report.md
-    exact/     the CasADi functions replayed in JAX (jit, vmap, grad) and RK4 simulation
-    export/    a trained network rebuilt in CasADi (Functions, generated C) for control
-    cli/       the ``softpinn`` command line: flags onto these functions
+A layer imports only the layers below it (``tests/test_layering.py``). Nothing here is imported
+by :mod:`softpinn.symbolic` or :mod:`softpinn.learn`; this package is the only one that imports
+both, and only through their faces.
 
-Nothing here is imported by :mod:`softpinn.symbolic` or :mod:`softpinn.learn`; this package is
-the only one that imports both.
+The entry points resolve lazily (PEP 562), so that importing one layer does not import the
+layers above it.
 """
 
-from softpinn.bridge.analysis import analyze
-from softpinn.bridge.tasks import ReproduceConfig, ReproduceResult, make_plan, reproduce
+from __future__ import annotations
 
-__all__ = ["ReproduceConfig", "ReproduceResult", "analyze", "make_plan", "reproduce"]
+import importlib
+
+#: name -> module that defines it
+_LAZY = {
+    "analyze": "softpinn.bridge.analysis",
+    "ReproduceConfig": "softpinn.bridge.tasks",
+    "ReproduceResult": "softpinn.bridge.tasks",
+    "make_plan": "softpinn.bridge.tasks",
+    "reproduce": "softpinn.bridge.tasks",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'softpinn.bridge' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

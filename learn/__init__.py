@@ -10,39 +10,101 @@ Core API::
     predict("runs/lnn", "data.npz", horizon=2.7)          # one-step and rollout errors
 """
 
-from softpinn.learn._config import TrainConfig
-from softpinn.learn._data import load_dataset
+from __future__ import annotations
+
 from softpinn.errors import UserError
+from softpinn.learn._checkpoint import (
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_text,
+    check_run_dir,
+    read_history,
+    read_json,
+)
+from softpinn.learn._config import GROUPS, RESUMABLE, TrainConfig
+from softpinn.learn._data import (
+    Dataset,
+    file_sha256,
+    load_dataset,
+    make_pairs,
+    mass_scale,
+    trajectories,
+)
+from softpinn.learn._ensemble import NonFiniteStart
 from softpinn.learn._integrate import rk4_step, rollout, step
-from softpinn.learn._losses import Pairs, accel_loss, pair_errors, pair_loss, rollout_loss
+from softpinn.learn._known_input import known_input_text, parse_known_input
+from softpinn.learn._losses import (
+    Equilibria,
+    Pairs,
+    accel_loss,
+    data_force_weights,
+    equilibrium_forces,
+    pair_errors,
+    pair_loss,
+    rollout_loss,
+)
 from softpinn.learn._models import DynamicsModel, ModelConfig, make_model
-from softpinn.learn._predict import evaluate, predict
-from softpinn.learn._programs import ProgramCache
-from softpinn.learn._rundir import LoadedRun, load_ensemble, load_run
+from softpinn.learn._predict import evaluate, one_step_errors, predict, rollouts
+from softpinn.learn._programs import ProgramCache, resolve_devices
+from softpinn.learn._rundir import LoadedRun, dataset_info, load_ensemble, load_run
+from softpinn.learn._splits import recorded_test_split, split_trajectories
+from softpinn.learn._steptime import time_train_steps
+from softpinn.learn._sx_replay import KNOWN_OPS, PROGRAM_FORMAT, replay
 from softpinn.learn._train import TrainingDiverged, TrainResult, train
+from softpinn.learn._velocity import resolve_momenta
 
 __all__ = [
-    "DynamicsModel",
-    "ModelConfig",
-    "LoadedRun",
-    "Pairs",
-    "ProgramCache",
-    "TrainConfig",
-    "TrainResult",
-    "TrainingDiverged",
-    "UserError",
     "accel_loss",
+    "atomic_write_bytes",
+    "atomic_write_json",
+    "atomic_write_text",
+    "check_run_dir",
+    "data_force_weights",
+    "Dataset",
+    "dataset_info",
+    "DynamicsModel",
+    "Equilibria",
+    "equilibrium_forces",
     "evaluate",
+    "file_sha256",
+    "GROUPS",
+    "known_input_text",
+    "KNOWN_OPS",
     "load_dataset",
     "load_ensemble",
     "load_run",
+    "LoadedRun",
     "make_model",
+    "make_pairs",
+    "mass_scale",
+    "ModelConfig",
+    "NonFiniteStart",
+    "one_step_errors",
     "pair_errors",
     "pair_loss",
+    "Pairs",
+    "parse_known_input",
     "predict",
+    "PROGRAM_FORMAT",
+    "ProgramCache",
+    "read_history",
+    "read_json",
+    "recorded_test_split",
+    "replay",
+    "resolve_devices",
+    "resolve_momenta",
+    "RESUMABLE",
     "rk4_step",
     "rollout",
     "rollout_loss",
+    "rollouts",
+    "split_trajectories",
     "step",
+    "time_train_steps",
     "train",
+    "TrainConfig",
+    "TrainingDiverged",
+    "TrainResult",
+    "trajectories",
+    "UserError",
 ]

@@ -11,16 +11,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.bridge.analysis import (
-    AnalysisResult,
-    analysis_q,
-    analyze,
-    sample_q,
-    summary_numbers,
-    write_report,
-)
-from softpinn.errors import UserError
+from softpinn.bridge.analysis import AnalysisResult, analysis_q, analyze, sample_q
+from softpinn.bridge.figures.analysis import summary_numbers, write_report
 from softpinn.bridge.figures.tables import read_csv
+from softpinn.errors import UserError
 from softpinn.learn._models import ModelConfig, make_model
 from softpinn.symbolic.model._true_model import TrueModel
 

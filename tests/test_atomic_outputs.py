@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.cli import main
+from softpinn.errors import UserError
+from softpinn.symbolic import _outputs as outputs
 from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic.simulation import _datafile as datafile
-from softpinn.symbolic import _outputs as outputs
 from softpinn.symbolic.simulation._datafile import read_dataset
-from softpinn.errors import UserError
 
 
 @pytest.fixture(autouse=True)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from softpinn.bridge.analysis.transforms import fit_alpha, fit_pointwise, fit_smooth
-from softpinn.errors import UserError
 from softpinn.bridge.figures.matrices import plot_entries_scatter, plot_transform_entries
+from softpinn.errors import UserError
 
 
 def stacks(N=12, n=2, seed=0):

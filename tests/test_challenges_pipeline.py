@@ -11,8 +11,8 @@ import pytest
 
 from softpinn.bridge.challenges import pipeline
 from softpinn.bridge.cli import main
-from softpinn.errors import UserError
 from softpinn.bridge.tasks import ReproduceConfig
+from softpinn.errors import UserError
 
 CALLS: list[str] = []
 

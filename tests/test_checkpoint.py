@@ -8,8 +8,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from softpinn.learn import _checkpoint as ckpt
 from softpinn.errors import UserError
+from softpinn.learn import _checkpoint as ckpt
 
 
 def test_atomic_write_replaces_and_leaves_no_temp(tmp_path):

@@ -9,8 +9,8 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn import _checkpoint as ckpt
 from softpinn.errors import UserError
+from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn._rundir import load_run
 from softpinn.learn._train import train
 

@@ -19,8 +19,8 @@ from pathlib import Path
 import casadi as ca
 import pytest
 
-from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic import _outputs as outputs
+from softpinn.symbolic.codegen import _codegen as codegen
 
 
 @pytest.fixture(autouse=True)

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from datagen import make_dataset, msd_matrices, simulate, write
 
-from softpinn.learn._data import load_dataset, make_pairs, mass_scale
 from softpinn.errors import UserError
+from softpinn.learn._data import load_dataset, make_pairs, mass_scale
 from softpinn.learn._splits import split_trajectories
 
 

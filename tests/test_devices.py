@@ -16,8 +16,8 @@ import pytest
 from datagen import make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn._config import TrainConfig
 from softpinn.errors import UserError
+from softpinn.learn._config import TrainConfig
 from softpinn.learn._models import ModelConfig
 from softpinn.learn.xlaflags import with_fast_compile
 

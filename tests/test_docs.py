@@ -63,7 +63,13 @@ def test_spec_doc_lists_every_data_key():
 
 
 def test_recipe_doc_lists_every_recipe_key():
-    from softpinn.symbolic.spec._recipe import BUDGET_KEYS, LOSS_KEYS, NETWORK_KEYS, QUICK_KEYS, TOP_KEYS
+    from softpinn.symbolic.spec._recipe import (
+        BUDGET_KEYS,
+        LOSS_KEYS,
+        NETWORK_KEYS,
+        QUICK_KEYS,
+        TOP_KEYS,
+    )
 
     text = (ROOT / "docs" / "recipes.md").read_text()
     keys = {*TOP_KEYS, *BUDGET_KEYS, *LOSS_KEYS, *QUICK_KEYS,

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic import TrueModel
-from softpinn.symbolic.model import _functions as functions
 from softpinn.symbolic.derivation._eom import derive
+from softpinn.symbolic.model import _functions as functions
 from softpinn.symbolic.model._functions import _Builder
 from softpinn.symbolic.spec._spec import spec_from_dict
 

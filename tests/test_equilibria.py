@@ -12,15 +12,15 @@ from datagen import make_dataset, msd_matrices
 from known_fields import Field, MassField
 
 from softpinn.bridge.cli import main
+from softpinn.errors import UserError
 from softpinn.learn._config import RESUMABLE, TrainConfig
 from softpinn.learn._data import load_dataset
-from softpinn.errors import UserError
 from softpinn.learn._losses import Equilibria, label_loss
 from softpinn.learn._models import HamiltonianNet, LagrangianNet, ModelConfig
+from softpinn.symbolic.model._true_model import TrueModel
 from softpinn.symbolic.simulation import _datafile as datafile
 from softpinn.symbolic.simulation._datatable import DataError
 from softpinn.symbolic.simulation._equilibria import attach, equilibria, input_box
-from softpinn.symbolic.model._true_model import TrueModel
 from softpinn.symbolic.spec._spec import load_spec
 
 

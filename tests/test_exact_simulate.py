@@ -18,7 +18,11 @@ from softpinn.symbolic.simulation._datasets import (
     write_dataset,
 )
 from softpinn.symbolic.simulation._datasets import make_dataset as casadi_dataset
-from softpinn.symbolic.simulation._simulate import SimulationConfig, SimulationError, SingularityError
+from softpinn.symbolic.simulation._simulate import (
+    SimulationConfig,
+    SimulationError,
+    SingularityError,
+)
 from softpinn.symbolic.simulation._simulate import simulate as casadi_simulate
 
 jax.config.update("jax_enable_x64", True)

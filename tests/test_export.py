@@ -15,8 +15,8 @@ import pytest
 from datagen import make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
-from softpinn.errors import UserError
 from softpinn.bridge.export import export_run, load_exported
+from softpinn.errors import UserError
 from softpinn.learn import load_run
 from softpinn.learn._integrate import step
 from softpinn.learn._train import TrainConfig, train

@@ -8,8 +8,8 @@ import pytest
 import ray
 
 from softpinn.bridge.cli import main
-from softpinn.symbolic.simulation._datasets import make_dataset
 from softpinn.errors import UserError
+from softpinn.symbolic.simulation._datasets import make_dataset
 from softpinn.symbolic.simulation._farm import ray_init, ray_simulator
 from softpinn.symbolic.spec._spec import load_spec
 

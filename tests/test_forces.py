@@ -12,7 +12,7 @@ import pytest
 from known_fields import Field, MassField
 from test_analysis import ScaledTask1
 
-from softpinn.bridge.analysis import analyze, sample_q, write_report
+from softpinn.bridge.analysis import analyze, sample_q
 from softpinn.bridge.analysis.forces import (
     compare_forces,
     data_samples,
@@ -21,8 +21,9 @@ from softpinn.bridge.analysis.forces import (
 )
 from softpinn.bridge.analysis.matrices import MatrixStack
 from softpinn.bridge.analysis.transforms import fit_transform
-from softpinn.errors import UserError
+from softpinn.bridge.figures.analysis import write_report
 from softpinn.bridge.figures.matrices import plot_forces
+from softpinn.errors import UserError
 from softpinn.learn._models import HamiltonianNet, ModelConfig
 from softpinn.symbolic.model._true_model import TrueModel
 

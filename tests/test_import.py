@@ -12,11 +12,11 @@ import pytest
 
 from softpinn.bridge.cli import main
 from softpinn.learn._data import load_dataset
-from softpinn.symbolic.spec import _orientation as ori
-from softpinn.symbolic.simulation._datafile import read_dataset
-from softpinn.symbolic.recorded._import import import_recordings
-from softpinn.symbolic.simulation._datasets import make_dataset
 from softpinn.symbolic.recorded._csv import RecordingError
+from softpinn.symbolic.recorded._import import import_recordings
+from softpinn.symbolic.simulation._datafile import read_dataset
+from softpinn.symbolic.simulation._datasets import make_dataset
+from softpinn.symbolic.spec import _orientation as ori
 
 
 @pytest.fixture(scope="module")

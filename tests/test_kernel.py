@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic import load_spec
-from softpinn.symbolic.model import _functions as functions
 from softpinn.symbolic.codegen import _kernel as kernel
+from softpinn.symbolic.model import _functions as functions
 from softpinn.symbolic.simulation._datasets import data_config, draw_trajectories
 from softpinn.symbolic.simulation._simulate import SimulationConfig, simulate
 

@@ -8,11 +8,11 @@ import pytest
 from datagen import blackbox_train_config, make_dataset
 
 from softpinn.bridge.cli import main
-from softpinn.learn import _checkpoint as ckpt
 from softpinn.errors import UserError
-from softpinn.learn.plots import written_by_softpinn
+from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn._predict import predict
 from softpinn.learn._train import train
+from softpinn.learn.plots import written_by_softpinn
 
 
 @pytest.fixture(scope="module")

@@ -527,8 +527,8 @@ def test_jobs_after_work_waits_for_its_models(tmp_path):
 def test_jobs_workers_errors_and_interruptions_reach_the_caller():
     """A worker's user error is the caller's (one line at the command line), and a worker
     interrupted first (Ctrl-C reaches every process) stops the run as Ctrl-C does."""
-    from softpinn.errors import UserError
     from softpinn.bridge.tasks.parallel import run_models
+    from softpinn.errors import UserError
 
     lines = []
     with pytest.raises(UserError, match="field 'x': expected a number"):

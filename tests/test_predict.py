@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, msd_matrices, simulate, write
 
-from softpinn.learn._data import load_dataset, trajectories
 from softpinn.errors import UserError
+from softpinn.learn._data import load_dataset, trajectories
 from softpinn.learn._models import DynamicsModel, ModelConfig
 from softpinn.learn._predict import _reset_mask, evaluate, predict, rollouts
 from softpinn.learn._train import train

@@ -10,7 +10,6 @@ import pytest
 
 from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.analysis.transforms import fit_joint, fit_smooth, fit_transform
-from softpinn.errors import UserError
 from softpinn.bridge.figures.paper import load_paper_tables, table_iii_comparison
 from softpinn.bridge.figures.tables import (
     format_mean_std,
@@ -25,6 +24,7 @@ from softpinn.bridge.figures.tables import (
     transform_table,
     write_table,
 )
+from softpinn.errors import UserError
 
 TASK4_ROW = {  # Table I, q = [1.2, -0.2, 0.15], mathematical model
     "M": [[1.728e-03, -3.121e-05, -1.957e-03], [-3.121e-05, 1.546e-03, 3.261e-04],

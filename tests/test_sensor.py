@@ -7,9 +7,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from softpinn.symbolic.spec import _orientation as ori
-from softpinn.symbolic.recorded._import import import_recordings
 from softpinn.errors import UserError
+from softpinn.symbolic.recorded._import import import_recordings
+from softpinn.symbolic.spec import _orientation as ori
 from softpinn.symbolic.spec._sensor import (
     SensorConfig,
     SensorError,

@@ -5,7 +5,13 @@ from __future__ import annotations
 import pytest
 
 from softpinn.errors import UserError
-from softpinn.symbolic.spec._spec import ModelSpec, SpecError, list_presets, load_spec, spec_from_toml
+from softpinn.symbolic.spec._spec import (
+    ModelSpec,
+    SpecError,
+    list_presets,
+    load_spec,
+    spec_from_toml,
+)
 
 GOOD = """
 name = "arm"

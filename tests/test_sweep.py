@@ -15,8 +15,8 @@ import pytest
 from datagen import make_dataset, tiny_model_config
 
 from softpinn.bridge.cli import main
-from softpinn.errors import UserError
 from softpinn.bridge.sweep import RAY_MISSING, Random, make_trials, parse_space, sweep
+from softpinn.errors import UserError
 from softpinn.learn import load_run
 from softpinn.learn._config import TrainConfig
 from softpinn.symbolic.simulation._farm import ray_init

@@ -16,10 +16,10 @@ import pytest
 
 from softpinn.bridge.cli import main
 from softpinn.symbolic import TrueModel, UserError
-from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic import _outputs as outputs
-from softpinn.symbolic.simulation._datasets import plan_dataset
+from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.simulation._datasets import plan_dataset
 from softpinn.symbolic.spec._spec import MAX_COORDINATES, SpecError, load_spec
 
 

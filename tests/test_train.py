@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from datagen import blackbox_train_config, make_dataset, tiny_model_config
 
+from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn._data import load_dataset
-from softpinn.errors import UserError
 from softpinn.learn._models import make_model
 from softpinn.learn._predict import evaluate
 from softpinn.learn._programs import PROGRAMS

@@ -2,7 +2,8 @@
 (:mod:`.matrices`), the transforms P(q) with M ≈ P M̂ (:mod:`.transforms`, Tables I, II,
 V-IX), force terms and accelerations along the data (:mod:`.forces`), linearised time scales
 (:mod:`.modes`), one-step floors (:mod:`.floors`), and :func:`analyze`, which runs them all for
-one trained run (:mod:`.compare`), and the files it writes (:mod:`.writer`)."""
+one trained run (:mod:`.compare`). Nothing here writes files: the analysis's tables and
+figures are :mod:`softpinn.bridge.figures.analysis`."""
 
 from softpinn.bridge.analysis.compare import (
     AnalysisResult,
@@ -12,7 +13,6 @@ from softpinn.bridge.analysis.compare import (
     sample_q,
     true_matrices,
 )
-from softpinn.bridge.report.analysis import summary_numbers, write_report
 
 __all__ = [
     "AnalysisResult",
@@ -20,7 +20,5 @@ __all__ = [
     "analyze",
     "learned_matrices",
     "sample_q",
-    "summary_numbers",
     "true_matrices",
-    "write_report",
 ]

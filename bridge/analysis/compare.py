@@ -16,7 +16,6 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.analysis.excitation import sample_share
 from softpinn.bridge.analysis.forces import ForceComparison, compare_forces
 from softpinn.bridge.analysis.sweeps import Sweeps, compute_sweeps
@@ -30,6 +29,8 @@ from softpinn.bridge.analysis.transforms import (
     fit_transform,
     to_jsonable,
 )
+from softpinn.errors import UserError
+from softpinn.learn.plots import coordinate_unit
 
 DEFAULT_TRANSFORMS = ("pointwise", "joint", "alpha", "constant", "smooth")
 
@@ -241,7 +242,6 @@ def analyze(
     names = getattr(spec, "coordinate_names", None)
     units = None
     if names is not None:
-        from softpinn.learn.plots import coordinate_unit
 
         units = [coordinate_unit(c, spec.kind) for c in names]
     sweeps = None

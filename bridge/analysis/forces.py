@@ -36,8 +36,8 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.analysis.matrices import MatrixStack, check_pair
+from softpinn.errors import UserError
 
 #: The force terms in report order; ``net = A u − G − D q̇``.
 TERMS = ("G", "D_qd", "A_u", "net")

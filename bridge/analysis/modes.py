@@ -18,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.analysis.floors import true_vector_field
+from softpinn.errors import UserError
 
 __all__ = ["format_modes", "learned_jacobian", "modes", "rest_state", "true_jacobian"]
 

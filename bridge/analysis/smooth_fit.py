@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.analysis.matrices import (
     block_weights,
     stacked_blocks,
@@ -24,6 +23,7 @@ from softpinn.bridge.analysis.transform_result import (
     _residuals,
     _result,
 )
+from softpinn.errors import UserError
 
 # --------------------------------------------------------------------------------------------
 # Smooth P(q)

@@ -11,7 +11,6 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.analysis.matrices import (
     MatrixStack,
     as_stack,
@@ -19,6 +18,7 @@ from softpinn.bridge.analysis.matrices import (
     check_q,
     common_blocks,
 )
+from softpinn.bridge.base.outputs import to_jsonable
 
 #: Names accepted by :func:`fit_transform`.
 TRANSFORMS = ("pointwise", "joint", "alpha", "constant", "smooth", "direct")

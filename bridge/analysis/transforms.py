@@ -34,7 +34,6 @@ from collections.abc import Callable
 
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.analysis.matrices import (
     BLOCKS,
     MATRICES,
@@ -58,6 +57,7 @@ from softpinn.bridge.analysis.transform_result import (
     _result,
     to_jsonable,
 )
+from softpinn.errors import UserError
 
 __all__ = [
     "BASES",

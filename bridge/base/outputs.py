@@ -20,6 +20,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from softpinn.errors import UserError
+from softpinn.learn import atomic_write_bytes, file_sha256
 
 MANIFEST = "manifest.json"
 FORMAT = "softpinn-manifest"
@@ -62,7 +63,6 @@ def _describe(who: str) -> str:
 
 
 def _sha256(path: Path) -> str:
-    from softpinn.learn._data import file_sha256  # the commands that own folders load learn
 
     return file_sha256(path)
 
@@ -170,7 +170,6 @@ def written_files(out: str | Path) -> list[Path]:
 
 def _write(out: Path, manifest: dict) -> None:
     """The manifest, written atomically (and readable as the user's files are)."""
-    from softpinn.learn._checkpoint import atomic_write_bytes
 
     text = json.dumps(manifest, indent=2, allow_nan=False) + "\n"
     atomic_write_bytes(out / MANIFEST, text.encode("utf-8"))

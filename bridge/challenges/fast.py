@@ -44,6 +44,11 @@ import numpy as np
 
 from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.figures.figsave import figure_dpi
+from softpinn.bridge.figures.paper import load_paper_tables
+from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
+from softpinn.bridge.tasks.stages import Stages, _model_config, stage_data
+from softpinn.learn import TrainConfig, load_dataset, time_train_steps, train
+from softpinn.symbolic import load_spec
 
 #: Issue 18's targets: Hessian / structured step time per n, and today / fast time to loss.
 STEP_TARGETS = {6: 4.0, 12: 8.0}
@@ -95,7 +100,6 @@ def _load() -> str:
 
 
 def _steps(form: str, log) -> dict[str, Any]:
-    from softpinn.learn._steptime import time_train_steps
 
     s = STEPS[form]
     out: dict[str, Any] = {"batch": s["batch"], "reps": s["reps"], "dtype": "float64",
@@ -125,14 +129,11 @@ def _flop_ratios(rows: dict[str, dict]) -> dict[str, float | None]:
 
 def paper_level() -> float:
     """The paper's task 4 test loss of the Lagrangian network (Table III): the issue's level."""
-    from softpinn.bridge.figures.paper import load_paper_tables
 
     return float(load_paper_tables()["table_III"][TASK]["physics"]["test_error"]["mean"])
 
 
 def _plan(quick: bool):
-    from softpinn.symbolic.spec._spec import load_spec
-    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(TASK)
     plan = make_plan(spec, ReproduceConfig(task=TASK, quick=quick, analysis_points=40))
@@ -162,9 +163,6 @@ def _history(run: str) -> list[dict[str, float]]:
 
 def _train(spec, plan, files, folder: Path, progress, *, loss: str, budget: dict[str, Any],
            target: float | None = None, init: str | None = None) -> dict[str, Any]:
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import TrainConfig, train
-    from softpinn.bridge.tasks.stages import _model_config
 
     f = files["physics"]
     m = plan.models["lagrangian"]
@@ -204,7 +202,6 @@ def _time_to(history, level: float, offset: float = 0.0) -> float | None:
 
 
 def _time_to_loss(out: Path, quick: bool, log, progress) -> dict[str, Any]:
-    from softpinn.bridge.tasks.stages import Stages, stage_data
 
     spec, plan, variant = _plan(quick)
     budgets = _budgets(plan, quick)
@@ -425,7 +422,6 @@ def _markdown(steps, ttl, quick: bool, figure: str) -> str:
 def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
               progress=None) -> dict[str, Any]:
     """Per-step cost and time to a test loss (the contract of :mod:`bridge.challenges`)."""
-    from softpinn.bridge.tasks.stages import Stages
 
     t0 = time.perf_counter()
     out = Path(out)

@@ -29,8 +29,16 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
+from softpinn.bridge.analysis.forces import compare_forces, data_samples
+from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.exact.serialize import spec_known_input
 from softpinn.bridge.figures.figsave import figure_dpi
+from softpinn.bridge.tasks.plan import REPORT_WEIGHT, ReproduceConfig, make_plan
+from softpinn.bridge.tasks.stages import Stages, stage_data, stage_train, variant_model
+from softpinn.learn import evaluate, load_dataset, load_run, mass_scale
+from softpinn.symbolic import TrueModel, load_spec
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -58,8 +66,6 @@ LABELS = {"M": "M", "M_inv": "M⁻¹", "D": "D", "G": "G", "A": "A", "Minv_G": "
 
 
 def _plan(task: str, quick: bool):
-    from softpinn.symbolic.spec._spec import load_spec
-    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(task)
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
@@ -80,10 +86,6 @@ def _plan(task: str, quick: bool):
 
 def _matrices(spec, run_model, data, train_ids, count: int) -> dict[str, float]:
     """Direct relative residuals (percent, P = I) over ``count`` samples of the training data."""
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
-    from softpinn.bridge.analysis.forces import compare_forces, data_samples
-    from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 
     q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(run_model, q)
@@ -101,12 +103,6 @@ def _matrices(spec, run_model, data, train_ids, count: int) -> dict[str, float]:
 
 
 def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]:
-    from softpinn.learn._data import load_dataset, mass_scale
-    from softpinn.learn._predict import evaluate
-    from softpinn.learn._rundir import load_run
-    from softpinn.bridge.exact.serialize import spec_known_input
-    from softpinn.bridge.tasks.plan import REPORT_WEIGHT
-    from softpinn.bridge.tasks.stages import Stages, stage_data, stage_train, variant_model
 
     spec, plan, variant = _plan(task, quick)
     stages = Stages(out, lambda s: log(f"{task}: {s}"))

@@ -37,8 +37,31 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
+from softpinn.bridge.analysis.forces import data_samples
+from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.figures.figsave import figure_dpi
+from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
+from softpinn.bridge.tasks.stages import Stages, _model_config, stage_data, variant_model
+from softpinn.learn import (
+    TrainConfig,
+    load_dataset,
+    load_ensemble,
+    mass_scale,
+    rollouts,
+    train,
+    trajectories,
+)
+from softpinn.symbolic import (
+    Equilibria,
+    TrueModel,
+    attach,
+    equilibria,
+    load_spec,
+    read_dataset,
+    write_dataset,
+)
 
 #: Issue 18's targets: the direct residual of M, D, G (percent) per task.
 TARGETS = {"task4": 3.0, "task5": 5.0}
@@ -81,8 +104,6 @@ COLUMNS = ("M", "D", "G", "A")
 
 
 def _plan(task: str, quick: bool):
-    from softpinn.symbolic.spec._spec import load_spec
-    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(task)
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
@@ -105,8 +126,6 @@ def _plan(task: str, quick: bool):
 
 def _label_file(src: str, pool, count: int, folder: Path) -> str:
     """The physics data file with the first ``count`` equilibria of ``pool`` attached."""
-    from softpinn.symbolic.simulation._datafile import read_dataset, write_dataset
-    from softpinn.symbolic.simulation._equilibria import Equilibria, attach
 
     data = read_dataset(src)
     if count:
@@ -123,9 +142,6 @@ def _train(spec, plan, m, path: str, files: dict, weights: dict, folder: Path,
            progress, mass_init: bool = False) -> dict[str, Any]:
     """The Lagrangian network of the plan on ``path`` with the label ``weights`` (and M started
     at the data's scale with ``mass_init``)."""
-    from softpinn.learn._data import load_dataset, mass_scale
-    from softpinn.learn._train import TrainConfig, train
-    from softpinn.bridge.tasks.stages import _model_config
 
     f = files["physics"]
     data = load_dataset(path)
@@ -151,8 +167,6 @@ def _predict(plan, m, model, data, test) -> dict[str, Any]:
     """The prediction error of the task reports: mean over the test trajectories of the
     rollout error (mean over samples after t0 of ‖q - q̂‖²) over the plan's horizon (or what
     the data hold), stepped as the network trained."""
-    from softpinn.learn._data import trajectories
-    from softpinn.learn._predict import rollouts
 
     trajs = trajectories(data, test, state="velocity")
     span = min(float(tr["t"][-1] - tr["t"][0]) for tr in trajs)
@@ -173,11 +187,7 @@ def _matrices(spec, model, data, train_ids, count: int, pool) -> dict[str, Any]:
     import jax
     import jax.numpy as jnp
 
-    from softpinn.learn._losses import Equilibria, equilibrium_forces
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
-    from softpinn.bridge.analysis.forces import data_samples
-    from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
+    from softpinn.learn import Equilibria, equilibrium_forces
 
     q, _, _, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(model, q)
@@ -202,10 +212,6 @@ def _matrices(spec, model, data, train_ids, count: int, pool) -> dict[str, Any]:
 
 def _task(task: str, out: Path, *, quick: bool, log, progress,
           mass_init: bool = False) -> dict[str, Any]:
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import load_ensemble
-    from softpinn.symbolic.simulation._equilibria import equilibria
-    from softpinn.bridge.tasks.stages import Stages, stage_data, variant_model
 
     spec, plan, variant = _plan(task, quick)
     stages = Stages(out, lambda s: log(f"{task}: {s}"))

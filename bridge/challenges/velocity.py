@@ -37,6 +37,10 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
+from softpinn.bridge.analysis.excitation import data_share
+from softpinn.bridge.analysis.forces import compare_forces, data_samples
+from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.challenges import velocity_report as report
 from softpinn.bridge.challenges.velocity_settings import (
@@ -58,11 +62,24 @@ from softpinn.bridge.challenges.velocity_settings import (
     WEIGHTED_BUDGET,
     WEIGHTED_QUICK,
 )
+from softpinn.bridge.exact.serialize import spec_known_input
+from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
+from softpinn.bridge.tasks.stages import Stages, stage_data, variant_model
+from softpinn.learn import (
+    ModelConfig,
+    TrainConfig,
+    data_force_weights,
+    load_dataset,
+    load_ensemble,
+    load_run,
+    rollouts,
+    train,
+    trajectories,
+)
+from softpinn.symbolic import TrueModel, load_spec
 
 
 def _plan(task: str, quick: bool):
-    from softpinn.symbolic.spec._spec import load_spec
-    from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 
     spec = load_spec(task)
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
@@ -97,9 +114,6 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
            known: bool = False) -> dict:
     """One network on the variant's physics data; a Hamiltonian one from its velocities. ``m``
     may set ``damping_form``, ``accel_space`` and ``batch_size`` besides the recipe's keys."""
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._models import ModelConfig
-    from softpinn.learn._train import TrainConfig, train
 
     f = files["physics"]
     data = load_dataset(f["path"])
@@ -108,13 +122,10 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
                      input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64",
                      damping_form=str(m.get("damping_form", "network")))
     if known:
-        from softpinn.bridge.exact.serialize import spec_known_input
 
         mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
     weights = None
     if m.get("weights_from"):  # the weighted second pass: from that run, with its weights
-        from softpinn.learn._losses import data_force_weights
-        from softpinn.learn._train import load_run
 
         weights = data_force_weights(load_run(m["weights_from"]).model, data, f["train"],
                                      str(m["accel_labels"]))
@@ -140,10 +151,6 @@ def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
 def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
     """Relative residuals (percent) of the learned against the true matrices over ``count``
     samples of the training data: directly (P = I), and after the best single scale α."""
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
-    from softpinn.bridge.analysis.forces import compare_forces, data_samples
-    from softpinn.bridge.analysis.transforms import compare_direct, fit_alpha
 
     q, qd, u, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(model, q)
@@ -165,9 +172,6 @@ def _matrices(spec, model, data, train_ids, count: int) -> dict[str, Any]:
 def _predict(plan, files: dict, trained: dict, folder: Path) -> dict:
     """Rollouts of every test trajectory over the plan's horizon (within the data) from the
     true initial state with the true inputs (the one-step test error is the training's)."""
-    from softpinn.learn._data import load_dataset, trajectories
-    from softpinn.learn._predict import rollouts
-    from softpinn.learn._train import load_run
 
     f = files["physics"]
     data = load_dataset(f["path"])
@@ -190,8 +194,6 @@ def _predict(plan, files: dict, trained: dict, folder: Path) -> dict:
 def _excitation(spec, data, train_ids, count: int) -> dict[str, Any]:
     """The inertial forces the training data show along each eigenvector of the true M
     (:func:`bridge.analysis.excitation.inertial_share`)."""
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.bridge.analysis.excitation import data_share
 
     return data_share(TrueModel(spec), data, train_ids, count=count)[0]
 
@@ -200,9 +202,6 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress, tag_n
              only=None) -> dict[str, Any]:
     """Every network of :data:`MODELS` (or those in ``only``) on one variant's data; stages
     and results under ``tag_name`` (default: the variant's name)."""
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import load_ensemble
-    from softpinn.bridge.tasks.stages import variant_model
 
     data = load_dataset(files["physics"]["path"])
     tag_name = tag_name or variant.name
@@ -286,7 +285,6 @@ def _excited_plan(plan, variant):
 
 
 def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]:
-    from softpinn.bridge.tasks.stages import Stages, stage_data
 
     spec, plan, variants = _plan(task, quick)
     stages = Stages(out, lambda s: log(f"{task}: {s}"))

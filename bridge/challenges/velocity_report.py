@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.bridge.figures.figsave import figure_dpi
+from softpinn.bridge.analysis.excitation import ratio_text
 from softpinn.bridge.challenges.velocity_settings import (
     COLUMNS,
     FORCE_MODELS,
@@ -18,6 +18,7 @@ from softpinn.bridge.challenges.velocity_settings import (
     PREDICT_MAX_STEP,
     TARGET_PERCENT,
 )
+from softpinn.bridge.figures.figsave import figure_dpi
 
 
 def _fmt(x, digits: int = 3) -> str:
@@ -258,7 +259,6 @@ def _excitation_lines(results: dict[str, Any]) -> list[str]:
     """The inertial forces each data set shows along the true M's two lightest directions
     (:func:`bridge.analysis.excitation.inertial_share`), the table that says where M⁻¹ can be
     learned from."""
-    from softpinn.bridge.analysis.excitation import ratio_text
 
     rows = []
     for task, r in results.items():

@@ -12,6 +12,8 @@ import argparse
 import importlib
 import sys
 
+from softpinn.learn.jitcache import enable_compile_cache
+
 #: Modules that contribute subcommands, in the order they appear in ``--help``.
 COMMAND_MODULES = (
     "softpinn.bridge.cli.symbolic",
@@ -110,7 +112,6 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in JIT_COMMANDS:
-        from softpinn.learn.jitcache import enable_compile_cache
 
         enable_compile_cache()
     try:

@@ -7,10 +7,20 @@ import json
 import sys
 import time
 
+from softpinn.bridge.analysis import analysis_q, analyze
+from softpinn.bridge.analysis.forces import data_samples
+from softpinn.bridge.analysis.transform_result import Status, match_word
+from softpinn.bridge.analysis.transforms import TRANSFORMS
 from softpinn.bridge.base import outputs
-from softpinn.errors import UserError
 from softpinn.bridge.cli.learn import _enable_x64
 from softpinn.bridge.cli.runnotes import member_notes
+from softpinn.bridge.figures.analysis import write_report
+from softpinn.bridge.figures.tables import percent_text
+from softpinn.bridge.tasks import ReproduceConfig, reproduce
+from softpinn.errors import UserError
+from softpinn.learn import load_dataset, load_run
+from softpinn.learn.xlaflags import use_fast_compile
+from softpinn.symbolic import TrueModel, load_spec
 
 
 def register(subparsers) -> None:
@@ -96,12 +106,7 @@ def cmd_analyze(args) -> int:
     _enable_x64()
     import numpy as np
 
-    from softpinn.learn._train import load_run
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.symbolic.spec._spec import load_spec
 
-    from softpinn.bridge.analysis import analysis_q, analyze, write_report
-    from softpinn.bridge.analysis.transforms import TRANSFORMS
 
     _check_order(args.run, args.model)
     if args.points < 1 and args.q is None:
@@ -194,7 +199,6 @@ def _check_same_model(run, spec, run_path: str) -> None:
     (from the data set's meta when the file is there and unchanged) or else its name."""
     from pathlib import Path
 
-    from softpinn.learn._data import load_dataset
 
     recorded = run.info.get("dataset", {})
     name = recorded.get("name")
@@ -235,7 +239,6 @@ def _data_q(run, data_path, count: int):
 
     import numpy as np
 
-    from softpinn.learn._data import load_dataset
 
     path = data_path or run.info.get("dataset", {}).get("path")
     if not path or not Path(path).is_file():
@@ -249,8 +252,6 @@ def _data_q(run, data_path, count: int):
 def _headline(result) -> list[str]:
     """One line per transform: what its total residual means, the fit's outcome where it is not
     ok, and the residual per matrix in percent (alpha too)."""
-    from softpinn.bridge.analysis.transform_result import Status, match_word
-    from softpinn.bridge.figures.tables import percent_text
 
     lines = []
     for name, r in result.results.items():
@@ -273,9 +274,7 @@ def _force_samples(run, data_path, count, transforms):
     accelerations are compared (said on stderr)."""
     from pathlib import Path
 
-    from softpinn.learn._data import load_dataset
 
-    from softpinn.bridge.analysis.forces import data_samples
 
     if count < 0:
         raise UserError(f"--samples: expected 0 or more, got {count}")
@@ -299,10 +298,8 @@ def _force_samples(run, data_path, count, transforms):
 
 
 def cmd_reproduce(args) -> int:
-    from softpinn.bridge.tasks import ReproduceConfig, reproduce
 
     if args.quick:  # compiling is most of a quick run: XLA's fast-compile settings
-        from softpinn.learn.xlaflags import use_fast_compile
 
         use_fast_compile()
     config = ReproduceConfig(

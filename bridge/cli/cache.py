@@ -22,6 +22,8 @@ import shutil
 from pathlib import Path
 
 from softpinn.errors import UserError
+from softpinn.learn import jitcache
+from softpinn.symbolic import cache_dir
 
 _CODE = re.compile(r"(kernel_)?[0-9a-f]{24}")
 _BUILD = re.compile(r"\.build-.+")
@@ -81,8 +83,6 @@ def _remove(path: Path) -> None:
 
 
 def cmd_cache(args) -> int:
-    from softpinn.learn import jitcache
-    from softpinn.symbolic.codegen._codegen import cache_dir
 
     code_root = cache_dir()
     here = jitcache.cache_folder()  # None when SOFTPINN_JIT_CACHE is off

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from softpinn.errors import UserError
+from softpinn.symbolic import CompilerWarning
 
 
 @contextlib.contextmanager
 def warnings_as_lines():
     """Show the compiler fallback warning as one line ``softpinn: warning: ...``."""
-    from softpinn.symbolic.codegen._codegen import CompilerWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CompilerWarning)

@@ -12,11 +12,20 @@ import sys
 
 import numpy as np
 
+from softpinn.bridge.control import (
+    QP_SOLVERS,
+    REFERENCES,
+    SENSITIVITIES,
+    SOLVERS,
+    MPCConfig,
+    compare,
+    default_input_bounds,
+)
 from softpinn.errors import UserError
+from softpinn.symbolic import load_spec
 
 
 def register(subparsers) -> None:
-    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SENSITIVITIES, SOLVERS, MPCConfig
 
     d = MPCConfig()
     p = subparsers.add_parser(
@@ -142,8 +151,6 @@ def cmd_control(args) -> int:
         import jax
 
         jax.config.update("jax_enable_x64", True)
-    from softpinn.bridge.control import MPCConfig, compare, default_input_bounds
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     if not (np.isfinite(args.rate) and args.rate > 0):

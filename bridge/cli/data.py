@@ -15,6 +15,7 @@ import tempfile
 from pathlib import Path
 
 from softpinn.errors import UserError
+from softpinn.symbolic import import_recordings, write_dataset, write_template
 
 
 def register(subparsers) -> None:
@@ -85,8 +86,6 @@ def register(subparsers) -> None:
 
 
 def cmd_import(args) -> int:
-    from softpinn.symbolic.simulation._datafile import write_dataset
-    from softpinn.symbolic.recorded._import import import_recordings
 
     out = Path(args.out)
     if out.suffix != ".npz":
@@ -126,7 +125,6 @@ def cmd_import(args) -> int:
 
 
 def cmd_init(args) -> int:
-    from softpinn.symbolic.recorded._template import write_template
 
     out = Path(args.out) if args.out else Path(f"{args.name}.toml")
     if out.suffix != ".toml":

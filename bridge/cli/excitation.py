@@ -6,9 +6,17 @@ from __future__ import annotations
 
 import json
 
-from softpinn.bridge.analysis.excitation import WEAK, mostly, ratio_text, weak_directions
-from softpinn.errors import UserError
+from softpinn.bridge.analysis.excitation import (
+    WEAK,
+    data_share,
+    mostly,
+    ratio_text,
+    weak_directions,
+)
 from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.errors import UserError
+from softpinn.learn import load_dataset
+from softpinn.symbolic import TrueModel, load_spec
 
 
 def register(subparsers) -> None:
@@ -36,11 +44,7 @@ def register(subparsers) -> None:
 
 
 def cmd_excitation(args) -> int:
-    from softpinn.learn._data import load_dataset
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.symbolic.spec._spec import load_spec
 
-    from softpinn.bridge.analysis.excitation import data_share
 
     if str(args.model).endswith(".npz") and not str(args.data).endswith(".npz"):
         raise UserError(f"excitation DATA.npz MODEL: {args.model} is a data set and {args.data} "

@@ -7,6 +7,10 @@ from __future__ import annotations
 
 import json
 
+from softpinn.bridge.exact.serialize import spec_known_input
+from softpinn.errors import UserError
+from softpinn.learn import PROGRAM_FORMAT, known_input_text, parse_known_input
+
 
 def known_input(source: str, n: int, m: int) -> str:
     """``--known-input``: the ``known_input`` text of a constant matrix file (.npy, or .json
@@ -14,8 +18,6 @@ def known_input(source: str, n: int, m: int) -> str:
     checked against the data's n coordinates and m inputs."""
     from pathlib import Path
 
-    from softpinn.errors import UserError
-    from softpinn.learn._known_input import PROGRAM_FORMAT, known_input_text
 
     path = Path(source)
     if path.suffix in (".npy", ".json"):
@@ -42,7 +44,6 @@ def known_input(source: str, n: int, m: int) -> str:
         if not np.all(np.isfinite(a)):
             raise UserError(f"--known-input: {source} holds NaN or inf")
         return known_input_text(a)
-    from softpinn.bridge.exact.serialize import spec_known_input
 
     try:
         text, sn, sm = spec_known_input(source)
@@ -59,8 +60,6 @@ def known_input(source: str, n: int, m: int) -> str:
 def _known_program(source: str, data: dict, n: int, m: int) -> str:
     """``--known-input A.program.json``: A(q) as a replayable program (``softpinn derive
     --programs``), checked to be a function of the data's n coordinates with an n x m output."""
-    from softpinn.errors import UserError
-    from softpinn.learn._known_input import known_input_text, parse_known_input
 
     outs = data.get("outputs")
     named = outs[0].get("name") if isinstance(outs, list) and len(outs) == 1 and isinstance(

@@ -9,6 +9,23 @@ import sys
 from softpinn.bridge.cli.bars import LbfgsBar as LbfgsBar  # re-exported: cli.bridge draws it
 from softpinn.bridge.cli.bars import TrainBar
 from softpinn.bridge.cli.runnotes import held_out_text
+from softpinn.errors import UserError
+from softpinn.learn import (
+    GROUPS,
+    RESUMABLE,
+    ModelConfig,
+    TrainConfig,
+    check_run_dir,
+    data_force_weights,
+    load_dataset,
+    load_run,
+    mass_scale,
+    read_json,
+    resolve_devices,
+    split_trajectories,
+    train,
+)
+from softpinn.learn.distributed import initialize, is_writer
 
 _Bar = TrainBar  # the name the tests and older code use
 
@@ -21,7 +38,6 @@ _CUSTOM = ("test_trajectories",)
 def _model_defaults() -> dict:
     import dataclasses
 
-    from softpinn.learn._models import ModelConfig
 
     return {f.name: f.default for f in dataclasses.fields(ModelConfig)}
 
@@ -59,7 +75,6 @@ def add_setting_flags(parser, *, skip=_CUSTOM, title=str, split_flags=_split_fla
     import types
     import typing
 
-    from softpinn.learn._config import GROUPS, TrainConfig
 
     hints = typing.get_type_hints(TrainConfig)
     for group in GROUPS:
@@ -155,7 +170,6 @@ def register(subparsers) -> None:
                        help="this process's index, 0 .. P-1 (process 0 writes the run)")
     hosts.add_argument("--cluster", action="store_true",
                        help="take the processes from the cluster's environment (SLURM, Open MPI)")
-    from softpinn.learn._config import RESUMABLE
 
     run = p.add_argument_group("run directory")
     run.add_argument(
@@ -196,9 +210,6 @@ def _enable_x64():
 def _model_config(args, n: int, m: int, data=None, train_ids=None):
     """The network's configuration from the flags; ``train_ids``: the training trajectories
     ``--mass-init data`` reads (None: all of the file's)."""
-    from softpinn.learn._data import mass_scale
-    from softpinn.errors import UserError
-    from softpinn.learn._models import ModelConfig
 
     if args.model is None:
         raise UserError(f"--model is required: one of {', '.join(MODEL_KINDS)}")
@@ -260,19 +271,13 @@ def _model_config(args, n: int, m: int, data=None, train_ids=None):
 
 def cmd_train(args) -> int:
     _enable_x64()
-    from softpinn.learn.distributed import initialize, is_writer
 
     initialize(args.coordinator, args.num_processes, args.process_id, cluster=args.cluster)
     if not is_writer():
         args.quiet = True  # one progress bar: process 0's
-    from softpinn.learn._checkpoint import read_json
-    from softpinn.learn._data import load_dataset
-    from softpinn.errors import UserError
-    from softpinn.learn._train import TrainConfig, train
 
     if args.resume and args.force:
         raise UserError("--resume and --force exclude each other")
-    from softpinn.learn._checkpoint import check_run_dir
 
     check_run_dir(args.out, force=args.force, resume=args.resume)  # before any work or bar
     if args.test_trajectories is not None and args.test_count is not None:
@@ -290,7 +295,6 @@ def cmd_train(args) -> int:
         data = load_dataset(args.data, n=config.model.n, m=config.model.m)
         config = _resumed_with_flags(args, config, data)
     else:
-        from softpinn.learn._splits import split_trajectories
 
         data = load_dataset(args.data)
         test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
@@ -307,7 +311,6 @@ def cmd_train(args) -> int:
             **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
                if f.name not in _CUSTOM},
         )
-    from softpinn.learn._programs import resolve_devices
 
     resolve_devices(config.devices)  # before the bar: a refusal is one line
     bar = _Bar(config.epochs * config.seeds, disable=args.quiet)
@@ -345,9 +348,6 @@ def cmd_train(args) -> int:
 def _weights_from(run_dir: str, data, train_ids, labels: str) -> list[float]:
     """``--accel-weights-from RUN``: :func:`learn._losses.force_weights` of RUN's best model over
     the training trajectories' samples, with q̈ labels as ``--accel-labels`` takes them."""
-    from softpinn.errors import UserError
-    from softpinn.learn._losses import data_force_weights
-    from softpinn.learn._train import load_run
 
     run = load_run(run_dir)
     if run.model_config.kind not in ("lagrangian", "hamiltonian") or (
@@ -380,7 +380,6 @@ def _resumed_with_flags(args, stored, data):
     keeps those that may change on resume and refuses the others, naming them)."""
     import dataclasses
 
-    from softpinn.errors import UserError
 
     given = set(args.given) - _RUN_FLAGS
     if args.model == stored.model.kind:  # the run's own kind typed again: no change
@@ -397,7 +396,6 @@ def _resumed_with_flags(args, stored, data):
     if given & _MODEL_FLAGS:
         if args.model is None:
             args.model = stored.model.kind
-        from softpinn.learn._splits import split_trajectories
 
         split = changes.get("test_trajectories", stored.test_trajectories)
         train_ids, _ = split_trajectories(data, test=split, seed=stored.split_seed)

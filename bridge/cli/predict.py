@@ -10,6 +10,8 @@ from types import SimpleNamespace
 
 from softpinn.bridge.cli.learn import _enable_x64
 from softpinn.bridge.cli.runnotes import member_notes, note_interrupted, ran_away_text
+from softpinn.errors import UserError
+from softpinn.learn import predict
 
 
 def register(subparsers) -> None:
@@ -60,8 +62,6 @@ def register(subparsers) -> None:
 
 def cmd_predict(args) -> int:
     _enable_x64()
-    from softpinn.errors import UserError
-    from softpinn.learn._predict import predict
 
     if Path(args.run).is_file() and Path(args.data).is_dir():
         raise UserError(f"RUN {args.run} is a file and DATA {args.data} a folder; the order is "

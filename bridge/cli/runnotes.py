@@ -7,10 +7,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+from softpinn.learn import read_json, recorded_test_split
+
 
 def member_notes(run_dir, run, member) -> list[str]:
     """Which member of an ensemble run the command used, and how it was chosen."""
-    from softpinn.learn._checkpoint import read_json
 
     try:
         info = read_json(Path(run_dir) / "config.json")
@@ -27,7 +28,6 @@ def member_notes(run_dir, run, member) -> list[str]:
 def note_interrupted(run_dir) -> None:
     """A note on stderr where the run's training was interrupted: its model is the best so far,
     not a finished run's."""
-    from softpinn.learn._checkpoint import read_json
 
     try:
         metrics = read_json(Path(run_dir) / "metrics.json")
@@ -66,8 +66,6 @@ def ran_away_text(res) -> str:
 
 def held_out_text(run_dir, config, data) -> str:
     """Which trajectories the test loss was measured on, and where that split came from."""
-    from softpinn.learn._checkpoint import read_json
-    from softpinn.learn._splits import recorded_test_split
 
     split = read_json(Path(run_dir) / "config.json")["split"]
     test = split["test"]

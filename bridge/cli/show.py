@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from softpinn.bridge.figures.arm import draw_configurations, shape_animation, shape_figure
 from softpinn.errors import UserError
+from softpinn.symbolic import PCC_KINDS, load_spec, read_dataset
 
 
 def register(subparsers) -> None:
@@ -33,11 +35,7 @@ def register(subparsers) -> None:
 def cmd_show(args) -> int:
     import numpy as np
 
-    from softpinn.symbolic.simulation._datafile import read_dataset
-    from softpinn.symbolic.derivation._shape import PCC_KINDS
-    from softpinn.symbolic.spec._spec import load_spec
 
-    from softpinn.bridge.figures.arm import draw_configurations, shape_animation, shape_figure
 
     if (args.q is None) == (args.data is None):
         raise UserError("give --q (configurations) or --data (a trajectory), one of the two")

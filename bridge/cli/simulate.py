@@ -10,10 +10,20 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.errors import UserError
-from softpinn.symbolic._outputs import count_of
-
 from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
+from softpinn.errors import UserError
+from softpinn.symbolic import (
+    attach,
+    check_seed,
+    count_of,
+    data_config,
+    equilibria,
+    load_spec,
+    make_dataset,
+    plan_dataset,
+    resample,
+    write_datasets,
+)
 
 
 def _test_words(data) -> str:
@@ -26,15 +36,6 @@ def _test_words(data) -> str:
 
 
 def cmd_simulate(args) -> int:
-    from softpinn.symbolic.simulation._datafile import write_datasets
-    from softpinn.symbolic.simulation._datasets import (
-        check_seed,
-        data_config,
-        make_dataset,
-        plan_dataset,
-        resample,
-    )
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     cfg = data_config(spec)
@@ -103,7 +104,7 @@ def cmd_simulate(args) -> int:
                 raise UserError("--ray: farms out the CasADi integrators; --integrator jax-rk4 "
                                 "runs every trajectory at once already")
             if args.ray is not None:
-                from softpinn.symbolic.simulation._farm import ray_simulator
+                from softpinn.symbolic import ray_simulator
 
                 sim = ray_simulator(spec, address=args.ray, compile=not args.no_compile,
                                     cache=args.cache, num_cpus=args.threads
@@ -133,7 +134,6 @@ def cmd_simulate(args) -> int:
             bar.leave = not failed  # an error leaves one clean line on stderr
             bar.close()
     if args.equilibria:
-        from softpinn.symbolic.simulation._equilibria import attach, equilibria
 
         data = attach(data, equilibria(spec, args.equilibria, seed=plan.seed))
     subs = [resample(data, rate) for rate in extra_rates]

@@ -7,6 +7,11 @@ from __future__ import annotations
 import json
 import sys
 
+from softpinn.bridge.sweep import METRICS, RAY_MISSING, SCHEDULERS, parse_space, sweep
+from softpinn.bridge.sweep.space import RANDOM_KINDS, dashed
+from softpinn.errors import UserError
+from softpinn.learn import TrainConfig, load_dataset
+
 #: train flags the sweep spells otherwise or leaves out: its --seeds and --samples are its own,
 #: and a trial trains one seed, so the ensemble mode does not apply
 _OWN = ("seeds", "samples", "test_trajectories", "ensemble")
@@ -33,8 +38,6 @@ def _add_settings(parser) -> None:
 
 
 def register(subparsers) -> None:
-    from softpinn.bridge.sweep import METRICS, SCHEDULERS
-    from softpinn.bridge.sweep.space import RANDOM_KINDS
 
     from softpinn.bridge.cli.learn import MODEL_KINDS, track_given
 
@@ -140,8 +143,6 @@ class _Bar:
 def cmd_sweep(args) -> int:
     import importlib.util
 
-    from softpinn.errors import UserError
-    from softpinn.bridge.sweep import RAY_MISSING
 
     try:
         have_ray = importlib.util.find_spec("ray") is not None
@@ -149,8 +150,6 @@ def cmd_sweep(args) -> int:
         have_ray = False
     if not have_ray:
         raise UserError(RAY_MISSING)
-    from softpinn.bridge.sweep import parse_space, sweep
-    from softpinn.bridge.sweep.space import dashed
 
     space = parse_space(args.grid or [], args.random or [])
     for name in space:
@@ -163,8 +162,6 @@ def cmd_sweep(args) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from softpinn.learn._config import TrainConfig
-    from softpinn.learn._data import load_dataset
 
     from softpinn.bridge.cli.learn import _model_config
 

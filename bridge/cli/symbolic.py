@@ -20,11 +20,21 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.errors import UserError
-from softpinn.symbolic._outputs import dumps
-
 from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
 from softpinn.bridge.cli.simulate import cmd_simulate
+from softpinn.bridge.exact.serialize import function_data
+from softpinn.errors import UserError
+from softpinn.symbolic import (
+    TrueModel,
+    derive,
+    dumps,
+    find_compiler,
+    functions_of,
+    generate,
+    list_presets,
+    load_spec,
+    read_derive_summary,
+)
 
 SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
 
@@ -181,7 +191,6 @@ def register(subparsers) -> None:
 
 
 def cmd_models(args) -> int:
-    from softpinn.symbolic.spec._spec import list_presets, load_spec
 
     rows = []
     for name in list_presets():
@@ -215,8 +224,6 @@ def _vector(flag: str, values, size: int, model: str) -> np.ndarray:
 
 
 def cmd_matrices(args) -> int:
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(args.model)
     q = _vector("--q", args.q, spec.n, spec.name)
@@ -281,10 +288,6 @@ def _impossible_lengths(spec, q) -> list[str]:
 
 
 def cmd_derive(args) -> int:
-    from softpinn.symbolic.codegen._codegen import find_compiler, generate, read_derive_summary
-    from softpinn.symbolic.derivation._eom import derive
-    from softpinn.symbolic.model._functions import functions_of
-    from softpinn.symbolic.spec._spec import load_spec
 
     positive("timeout", args.timeout)
     spec = load_spec(args.model)
@@ -314,7 +317,6 @@ def cmd_derive(args) -> int:
     t_functions = time.perf_counter() - t0
     programs, timings = {}, {"derive": t_derive, "functions": t_functions}
     if args.programs:
-        from softpinn.bridge.exact.serialize import function_data
 
         t0 = time.perf_counter()
         programs = {f"{key}.program.json": json.dumps(function_data(fn), allow_nan=False)

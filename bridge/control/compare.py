@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.errors import UserError
+from softpinn.bridge.base import outputs
 from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
 from softpinn.bridge.control.models import (
@@ -53,6 +53,8 @@ from softpinn.bridge.control.references import (
     step_reference,
     step_targets,
 )
+from softpinn.errors import UserError
+from softpinn.symbolic import TrueModel, load_spec
 
 __all__ = ["compare", "REFERENCES", "FORMAT"]
 
@@ -145,8 +147,6 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     simulations (controllers x references).
     """
     from softpinn import __version__
-    from softpinn.symbolic.model._true_model import TrueModel
-    from softpinn.symbolic.spec._spec import load_spec
 
     t_start = time.perf_counter()
     config = MPCConfig() if config is None else config
@@ -180,7 +180,6 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     if duration is not None and not (np.isfinite(duration) and duration > 0):
         raise UserError(f"duration: expected a number of seconds > 0, got {duration!r}")
 
-    from softpinn.bridge.base import outputs
 
     if out is not None:
         outputs.check(Path(out), "control", force=force)  # one line, before any work

@@ -20,7 +20,11 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from softpinn.bridge.export import export_run, load_exported, model_params
+from softpinn.bridge.export.layers import mlp
 from softpinn.errors import UserError
+from softpinn.learn import load_run
+from softpinn.symbolic import planar_plate, spatial_tip
 
 __all__ = ["PredictionModel", "from_export", "from_run", "from_true", "linearised",
            "tip_output", "output_label", "resolve_run"]
@@ -63,11 +67,9 @@ def tip_output(spec) -> ca.Function:
     q = ca.SX.sym("q", spec.n)
     last = len(spec.segments) - 1
     if spec.kind == "spatial-pcc":
-        from softpinn.symbolic.derivation._kinematics import spatial_tip
 
         y = spatial_tip(spec, q, last)[1]
     elif spec.kind == "planar-pcc":
-        from softpinn.symbolic.derivation._kinematics import planar_plate
 
         y = planar_plate(spec, q, last, 1.0)
     else:
@@ -91,7 +93,6 @@ def _identity_state(q, qd):
 
 def from_export(directory, output: ca.Function, name: str | None = None) -> PredictionModel:
     """The exported network in ``directory`` (see :mod:`softpinn.bridge.export`)."""
-    from softpinn.bridge.export import load_exported
 
     directory = Path(directory)
     fns = load_exported(directory)
@@ -136,10 +137,7 @@ def _blackbox_mx(meta: dict, field_sx: ca.Function) -> ca.Function | None:
             h.update((d / name).read_bytes())
     if h.hexdigest() != meta["run"].get("sha256"):
         return None
-    from softpinn.learn import load_run
 
-    from softpinn.bridge.export import model_params
-    from softpinn.bridge.export.layers import mlp
 
     n, m = int(meta["n"]), int(meta["m"])
     x, u = ca.MX.sym("x", 2 * n), ca.MX.sym("u", m)
@@ -208,7 +206,6 @@ def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
         _check_sizes(path, directory, output)
     seconds = 0.0
     if what == "run":
-        from softpinn.bridge.export import export_run
 
         t0 = time.perf_counter()
         export_run(directory, export_dir, member=member, mean=mean, force=force,

@@ -36,10 +36,17 @@ import time
 import casadi as ca
 import numpy as np
 
-from softpinn.errors import UserError
 from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
 from softpinn.bridge.control.models import PredictionModel
-from softpinn.bridge.control.rk4 import _field_functions, _frozen_sensitivities, _stage_functions, _sym, rk4_map
+from softpinn.bridge.control.rk4 import (
+    _field_functions,
+    _frozen_sensitivities,
+    _stage_functions,
+    _sym,
+    rk4_map,
+)
+from softpinn.errors import UserError
+from softpinn.symbolic import DEFAULT_FLAGS, compile_functions
 
 __all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
 
@@ -135,7 +142,6 @@ class MPC:
     # ------------------------------------------------------------------ Gauss-Newton SQP
 
     def _build_sqp(self, compiler, cache):
-        from softpinn.symbolic.codegen._codegen import DEFAULT_FLAGS, compile_functions
 
         cfg, mod = self.config, self.model
         n, nx, m, N, ny = mod.n, self.nx, self.m, self.N, self.ny

@@ -20,8 +20,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from softpinn.bridge.figures.arm import gravity_up_axis
 from softpinn.bridge.control.loop import outside_mask
+from softpinn.bridge.figures.arm import gravity_up_axis
 
 __all__ = ["write_figures"]
 

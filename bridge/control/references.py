@@ -24,13 +24,13 @@ import casadi as ca
 import numpy as np
 
 from softpinn.errors import UserError
+from softpinn.symbolic import data_config, draw_trajectories, plan_dataset
 
 __all__ = ["circle_reference", "circle_start", "step_reference", "equilibrium", "step_targets",
            "default_center", "default_radius", "default_input_bounds"]
 
 
 def _data_range(spec):
-    from softpinn.symbolic.simulation._datatable import data_config
 
     try:
         cfg = data_config(spec)
@@ -64,7 +64,6 @@ def default_input_bounds(spec) -> tuple[np.ndarray, np.ndarray] | None:
     trained on. The signals themselves are measured, so a multisine's summed components count.
     An input the data hold constant is left unbounded (-inf, inf); None when no input moves
     (or m = 0)."""
-    from softpinn.symbolic.simulation._datasets import draw_trajectories, plan_dataset
 
     if not spec.m:
         return None

@@ -16,11 +16,10 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from softpinn.symbolic.simulation._datasets import DatasetArrays, DatasetPlan, _version, plan_dataset
-from softpinn.symbolic.simulation._datasets import make_dataset as _make_dataset
-from softpinn.symbolic.spec._spec import ModelSpec
 from softpinn.bridge.exact.model import jax_model
 from softpinn.bridge.exact.simulate import choose_backend, simulate
+from softpinn.symbolic import DatasetArrays, DatasetPlan, ModelSpec, package_version, plan_dataset
+from softpinn.symbolic import make_dataset as _make_dataset
 
 METHOD = "classical Runge-Kutta 4, fixed step (JAX/XLA, translated exact model, vmap + scan)"
 METHOD_C = ("classical Runge-Kutta 4, fixed step (batched C kernels of the exact model's SX "
@@ -54,7 +53,7 @@ def make_dataset(
 
     data = _make_dataset(plan=plan, progress=progress, simulator=batch_rk4, simulator_meta={
         "compiled": "c-kernel" if backend == "c" else "jax", "compiled_from_cache": None,
-        "jax_version": _version("jax")})
+        "jax_version": package_version("jax")})
     data.meta["simulation"]["method"] = METHOD_C if backend == "c" else METHOD
     data.meta["timings_s"]["functions"] = translate_s
     return data

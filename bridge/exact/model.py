@@ -14,10 +14,9 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from softpinn.symbolic.model._functions import functions
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
 from softpinn.bridge.exact.errors import TranslationError
 from softpinn.bridge.exact.translate import Program, translate
+from softpinn.symbolic import ModelSpec, functions, load_spec
 
 #: outputs that are 1 x 1 in CasADi and scalars here
 _SCALARS = frozenset({"energy", "kinetic", "potential"})

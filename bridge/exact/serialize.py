@@ -28,9 +28,10 @@ from typing import Any
 
 import casadi as ca
 
-from softpinn.learn._sx_replay import PROGRAM_FORMAT
 from softpinn.bridge.exact.errors import TranslationError
 from softpinn.bridge.exact.translate import Program, translate
+from softpinn.learn import PROGRAM_FORMAT, known_input_text
+from softpinn.symbolic import functions, load_spec
 
 __all__ = ["FORMAT", "program_data", "function_data", "casadi_function", "spec_known_input"]
 
@@ -121,9 +122,6 @@ def spec_known_input(model) -> tuple[str, int, int]:
     """``(known_input text, n, m)``: the exact A(q) of a spec (a preset name, a spec path or a
     ``ModelSpec``) as program data for :class:`softpinn.learn._models.ModelConfig`
     (``input_form="known"``)."""
-    from softpinn.learn._known_input import known_input_text
-    from softpinn.symbolic.model._functions import functions
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(model)
     return known_input_text(function_data(functions(spec)["A"])), spec.n, spec.m

@@ -29,18 +29,20 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from softpinn.symbolic.codegen import _kernel as kernel
-from softpinn.symbolic.simulation._samples import in_threads
-from softpinn.symbolic.simulation._signals import Signal
-from softpinn.symbolic.simulation._simulate import (
+from softpinn.bridge.exact.model import ExactModel
+from softpinn.bridge.exact.translate import translate
+from softpinn.symbolic import (
+    KernelRK4,
+    Signal,
     SimResult,
     SimulationConfig,
     SimulationError,
     SingularityError,
     condition_numbers,
+    expand_sx,
+    in_threads,
+    kernels_available,
 )
-from softpinn.bridge.exact.model import ExactModel
-from softpinn.bridge.exact.translate import translate
 
 #: RK4 stages: the state offset of stage i is c[i] * dt * k_{i-1}; the step adds b[i] * k_i
 _C = (0.0, 0.5, 0.5, 1.0)
@@ -114,21 +116,21 @@ def choose_backend(backend: str = "auto") -> str:
                               f"{backend!r}")
     if backend != "auto":
         return backend
-    return "c" if jax.default_backend() == "cpu" and kernel.available() else "jax"
+    return "c" if jax.default_backend() == "cpu" and kernels_available() else "jax"
 
 
 def post_function(model: ExactModel) -> ca.Function:
     """SX ``post(x, u) -> [p; vec(M)]`` (momentum and mass matrix at a sample)."""
     n, m = model.n, model.m
     x, u = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m)
-    mom = kernel.expand(model.functions["momentum"])(x[:n], x[n:])
-    mass = kernel.expand(model.functions["M"])(x[:n])
+    mom = expand_sx(model.functions["momentum"])(x[:n], x[n:])
+    mass = expand_sx(model.functions["M"])(x[:n])
     return ca.Function("post", [x, u], [ca.densify(ca.vertcat(mom, ca.reshape(mass, n * n, 1)))],
                        ["x", "u"], ["post"])
 
 
-def _c_rk4(model: ExactModel, signal: Signal) -> kernel.RK4:
-    return kernel.RK4(model.functions["ode"], signal.function(),
+def _c_rk4(model: ExactModel, signal: Signal) -> KernelRK4:
+    return KernelRK4(model.functions["ode"], signal.function(),
                       extra={"post": post_function(model)})
 
 
@@ -220,7 +222,7 @@ def simulate(
     return SimResult(t=t, x=xs, u=u, qdd=qdd, p=mom, config=config, info=info)
 
 
-def _c_outputs(rk: kernel.RK4, x: np.ndarray, u: np.ndarray, n: int, threads: int):
+def _c_outputs(rk: KernelRK4, x: np.ndarray, u: np.ndarray, n: int, threads: int):
     """(qdd, p, M) at N samples from the library's ode and post kernels, N split over
     ``threads`` threads."""
     N = len(x)

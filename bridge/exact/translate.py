@@ -18,8 +18,8 @@ from __future__ import annotations
 import casadi as ca
 import jax.numpy as jnp
 
-from softpinn.learn._sx_replay import KNOWN_OPS, replay
 from softpinn.bridge.exact.errors import TranslationError
+from softpinn.learn import KNOWN_OPS, replay
 
 #: CasADi's operation codes by name ("ADD", ...: ``OP_*`` without the prefix); the code keeps
 #: the names, which :func:`softpinn.learn._sx_replay.replay` evaluates

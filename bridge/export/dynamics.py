@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import casadi as ca
 
-from softpinn.errors import UserError
 from softpinn.bridge.export.layers import cho_solve, field_expression, lower_inverse, mlp
+from softpinn.errors import UserError
 
 __all__ = ["member_expressions", "export_functions", "step_function", "MATRIX_NAMES"]
 

@@ -21,6 +21,7 @@ import math
 import casadi as ca
 import numpy as np
 
+from softpinn.bridge.exact.serialize import casadi_function
 from softpinn.errors import UserError
 
 __all__ = [
@@ -161,7 +162,6 @@ def field_expression(field: dict, q):
     if kind == "known":  # a known A(q): a constant, or the exact A(q) rebuilt from its program
         if "value" in field:
             return ca.SX(ca.DM(np.asarray(field["value"], float)))
-        from softpinn.bridge.exact.serialize import casadi_function
 
         return casadi_function(field["program"])(q)
     if kind == "zero":

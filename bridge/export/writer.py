@@ -25,9 +25,12 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from softpinn.errors import UserError
+from softpinn.bridge.base import outputs
 from softpinn.bridge.export.dynamics import export_functions
 from softpinn.bridge.export.params import model_params
+from softpinn.errors import UserError
+from softpinn.learn import load_run
+from softpinn.symbolic import compile_functions
 
 __all__ = ["export_run", "ExportResult", "FORMAT", "FORMAT_VERSION", "load_exported"]
 
@@ -76,7 +79,6 @@ def _select_members(run: Path, info: dict, member, mean: bool) -> list[int | Non
 
 def _check_out(out: Path, force: bool) -> None:
     """The refusals of :func:`_prepare_out`, before any work and without writing anything."""
-    from softpinn.bridge.base import outputs
 
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out}: exists and is not a directory")
@@ -159,7 +161,6 @@ def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dic
 
 def _write_c(fns: dict, out: Path, compiler, log=lambda text: None) -> dict:
     """model.c + model.h (CasADi code generator) and model.so from the project's code cache."""
-    from softpinn.symbolic.codegen._codegen import compile_functions
 
     cg = ca.CodeGenerator("model.c", {"with_header": True, "casadi_real": "double"})
     for key in sorted(fns):
@@ -197,7 +198,6 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     written to ``model.json`` (with the symbolic Functions on ``.functions``). ``log(text)``:
     told each stage as it starts (the C compile of a large network takes a minute or more).
     """
-    from softpinn.learn import load_run
 
     log = log or (lambda text: None)
 

@@ -10,10 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.symbolic.derivation._shape import backbone_points
-
 from softpinn.bridge.figures.figsave import is_draft, save_for_print
 from softpinn.bridge.figures.rollouts import COLORS, NETWORK, diverged_at
+from softpinn.symbolic import backbone_points
 
 
 def _axes(fig, dim: int, where=(1, 1, 1)):

@@ -17,10 +17,11 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from softpinn.bridge.analysis.forces import FRAME_LABELS, TERMS
 from softpinn.bridge.analysis.transforms import as_stack
-from softpinn.errors import UserError
 from softpinn.bridge.figures.figsave import figure_dpi
 from softpinn.bridge.figures.tables import percent_text
+from softpinn.errors import UserError
 
 _TITLES = {"M": "M(q)", "M_inv": "M⁻¹(q)", "D": "D(q)", "G": "G(q)", "A": "A(q)"}
 
@@ -229,7 +230,6 @@ def plot_forces(forces, *, path: str | Path | None = None, title: str = "") -> F
     the learned A u's error against G's, per component: points on the identity are errors that
     cancel in the net force A u − G − D q̇. In the acceleration frame the same for M⁻¹ times
     each term."""
-    from softpinn.bridge.analysis.forces import FRAME_LABELS, TERMS
 
     terms = getattr(forces, "terms", None)
     if not terms:

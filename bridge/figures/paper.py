@@ -8,8 +8,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from softpinn.errors import UserError
 from softpinn.bridge.figures.tables import Cell, Span, Table, format_mean_std
+from softpinn.errors import UserError
 
 # --------------------------------------------------------------------------------------------
 # Table III: ours beside the paper

@@ -22,6 +22,8 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis.transform_result import Status, match_word
+from softpinn.bridge.analysis.transforms import as_stack
 from softpinn.errors import UserError
 
 Cell = float | int | str | None
@@ -208,7 +210,6 @@ def transform_table(
     """Table I / II: true and learned matrices at each q, then (with a transform ``result``)
     the transformed learned matrices ``P X^`` and P itself. ``true`` and ``learned`` are
     :class:`bridge.transforms.MatrixStack` or dicts; ``M_inv`` is allowed in ``matrices``."""
-    from softpinn.bridge.analysis.transforms import as_stack
 
     true, learned = as_stack(true, "true"), as_stack(learned, "learned")
     cols, tex = [], {}
@@ -241,7 +242,6 @@ def summary_table(results: Mapping[str, Any], *, caption: str = "") -> Table:
     residual of each matrix over all q and their root mean square, in percent, the nearest
     multiple of I (scale c, alpha = 1/c, relative distance) and, for ``smooth``, the held-out
     residual (percent)."""
-    from softpinn.bridge.analysis.transform_result import Status, match_word
 
     order = ("M_inv", "M", "D", "A", "G")
     blocks: list[str] = []

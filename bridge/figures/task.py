@@ -9,16 +9,22 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.learn.plots import coordinate_unit
-from softpinn.symbolic.derivation._shape import PCC_KINDS
-
-from softpinn.errors import UserError
+from softpinn.bridge.figures.arm import shape_animation, shape_figure
 from softpinn.bridge.figures.figsave import save_for_print
 from softpinn.bridge.figures.paper import load_paper_tables
-from softpinn.bridge.figures.rollouts import COLORS, MIN_BAND, finite_points, horizon_figure, rollout_figure
+from softpinn.bridge.figures.rollouts import (
+    COLORS,
+    MIN_BAND,
+    finite_points,
+    horizon_figure,
+    rollout_figure,
+)
 from softpinn.bridge.figures.rollouts import NETWORK as _NETWORK
-from softpinn.bridge.figures.arm import shape_animation, shape_figure
 from softpinn.bridge.figures.tables import format_mean_std
+from softpinn.errors import UserError
+from softpinn.learn import read_history
+from softpinn.learn.plots import coordinate_unit, plot_loss_curves
+from softpinn.symbolic import PCC_KINDS
 
 
 def _rel(path: Path, out: Path) -> str:
@@ -26,7 +32,6 @@ def _rel(path: Path, out: Path) -> str:
 
 
 def _load_history(run: Path) -> list[dict]:
-    from softpinn.learn._checkpoint import read_history
 
     path = run / "history.csv"
     if not path.is_file():
@@ -39,7 +44,6 @@ def _load_history(run: Path) -> list[dict]:
 
 def _variant_figures(spec, plan, vname: str, models: dict, fig_dir: Path,
                      out: Path, animate: bool = False) -> list[str]:
-    from softpinn.learn.plots import plot_loss_curves
 
     lines: list[str] = []
     hist = {k: _load_history(Path(e["train"]["run"])) for k, e in models.items()}

@@ -23,8 +23,16 @@ from softpinn.bridge.figures.experiment import (
 )
 from softpinn.bridge.figures.paper import load_paper_tables
 from softpinn.bridge.figures.rollouts import NETWORK
-from softpinn.bridge.figures.tables import Span, Table, format_mean_std, format_number, to_markdown, write_table
+from softpinn.bridge.figures.tables import (
+    Span,
+    Table,
+    format_mean_std,
+    format_number,
+    to_markdown,
+    write_table,
+)
 from softpinn.bridge.report.walltime import WallTime
+from softpinn.learn import load_dataset
 
 WHO = {"lagrangian": "Lagrangian network", "blackbox": "black box"}
 
@@ -292,7 +300,6 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
     tid = int(main["preprocessing"]["none"]["import"]["test"][0])
     rows = truth["traj"] == tid
     t = truth["t"][rows]
-    from softpinn.learn._data import load_dataset
 
     processed = {}
     for p, e in main["preprocessing"].items():

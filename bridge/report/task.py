@@ -18,12 +18,16 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.bridge.tasks.plan import data_step, own_substeps
+from softpinn.bridge.analysis.excitation import markdown_lines
+from softpinn.bridge.analysis.modes import format_modes
+from softpinn.bridge.analysis.transform_result import match_word
+from softpinn.bridge.figures.figsave import draft_figures, is_draft
 from softpinn.bridge.figures.paper import paper_task, results_table, table_iii_comparison
 from softpinn.bridge.figures.tables import to_markdown, write_table
 from softpinn.bridge.figures.task import _rate_figure, _variant_figures
 from softpinn.bridge.report.verdict import verdict
 from softpinn.bridge.report.walltime import WallTime
+from softpinn.bridge.tasks.plan import data_step, own_substeps
 
 _NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 _COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
@@ -183,7 +187,6 @@ def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
-    from softpinn.bridge.figures.figsave import is_draft
 
     # spawn: this process may hold JAX's threads, which fork does not survive
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -193,7 +196,6 @@ def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
 
 def _variant_figures_drafted(draft: bool, *args) -> list[str]:
     """:func:`_variant_figures` in a worker process, drafts as in the caller's."""
-    from softpinn.bridge.figures.figsave import draft_figures
 
     with draft_figures(draft):
         return _variant_figures(*args)
@@ -201,7 +203,6 @@ def _variant_figures_drafted(draft: bool, *args) -> list[str]:
 
 def _modes_lines(models: dict) -> list[str]:
     """The true and each learned model's eigenvalues at rest at the data's mean q and u."""
-    from softpinn.bridge.analysis.modes import format_modes
 
     rows = [(kind, e["modes"]) for kind, e in models.items() if e.get("modes")]
     if not rows:
@@ -296,7 +297,6 @@ def _rel(path: Path, out: Path) -> str:
 
 def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path, *,
                       excitation: bool = True) -> list[str]:
-    from softpinn.bridge.analysis.transform_result import match_word
 
     s = an["summary"]
     where = "" if vname == "main" else f", {vname} data"
@@ -352,7 +352,6 @@ def _excitation_lines(path: Path) -> list[str]:
     share = analysis.get("excitation")
     if not share:
         return []
-    from softpinn.bridge.analysis.excitation import markdown_lines
 
     table = markdown_lines(share, analysis.get("meta", {}).get("coordinates"), heading=None)
     return ["", "**What the training data show of the inertia.** " + table[0], *table[1:-1]]

@@ -8,8 +8,8 @@ import math
 from typing import Any
 
 from softpinn.bridge.analysis.transform_result import match_word
-from softpinn.errors import UserError
 from softpinn.bridge.figures.paper import load_paper_tables, paper_task
+from softpinn.errors import UserError
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 

@@ -29,12 +29,11 @@ import signal
 from dataclasses import dataclass
 from pathlib import Path
 
-from softpinn.learn._config import TrainConfig
-from softpinn.symbolic.simulation._farm import ray_init
-
 from softpinn.bridge.base import outputs
-from softpinn.errors import UserError
 from softpinn.bridge.sweep.space import Random, Trial, check_space, make_trials, parse_space
+from softpinn.errors import UserError
+from softpinn.learn import Dataset, TrainConfig, dataset_info, load_dataset, read_json
+from softpinn.symbolic import ray_init
 
 __all__ = ["METRICS", "RAY_MISSING", "SCHEDULERS", "Random", "SweepResult", "Trial",
            "make_trials", "parse_space", "sweep"]
@@ -168,7 +167,6 @@ def sweep(
     ray, tune = _import_ray()
     if address is not None:
         _check_reachable(address)
-    from softpinn.learn._data import Dataset, load_dataset
 
     mc = base_config.model
     if not isinstance(data, Dataset):
@@ -315,7 +313,6 @@ def _callback(tune, progress, total):
 
 
 def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> dict:
-    from softpinn.learn._checkpoint import read_json
 
     tdir = root / "trials" / trial.name
     last = dict(result.metrics or {}) if result is not None else {}
@@ -376,7 +373,6 @@ def _row(trial: Trial, result, finished: bool, root: Path, scheduler: str) -> di
 
 def _write_results(out, trials, grid, finished, data, base_config, space, *, samples, seeds,
                    scheduler, metric, address) -> SweepResult:
-    from softpinn.learn._rundir import dataset_info
 
     from softpinn.bridge.sweep import results as res
 

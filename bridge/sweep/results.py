@@ -13,10 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.learn._checkpoint import atomic_write_bytes, atomic_write_json, atomic_write_text
-from softpinn.learn.plots import SOFTWARE
-
 from softpinn.bridge.sweep.space import Random, dashed, format_value
+from softpinn.learn import atomic_write_bytes, atomic_write_json, atomic_write_text
+from softpinn.learn.plots import SOFTWARE
 
 FORMAT = "softpinn-sweep"
 COLUMNS = ("trial", "seed", "best_test_loss", "epochs_run", "epochs", "stopped_early", "status",

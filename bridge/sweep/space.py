@@ -21,10 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.learn._config import TrainConfig
-from softpinn.errors import UserError as LearnError
-
 from softpinn.errors import UserError
+from softpinn.errors import UserError as LearnError
+from softpinn.learn import TrainConfig
 
 #: Kinds of random ranges: ``KIND:LOW:HIGH`` (``choice:A,B,...``).
 RANDOM_KINDS = ("log", "uniform", "int", "logint", "choice")

@@ -23,6 +23,8 @@ from pathlib import Path
 
 from ray import tune
 
+from softpinn.learn import NonFiniteStart, TrainConfig, TrainingDiverged, train
+
 
 class Trial(tune.Trainable):
     """``config``: ``{"trial": NAME}``; ``specs``: NAME -> ``{"name", "config"
@@ -76,9 +78,6 @@ class Trial(tune.Trainable):
             raise KeyboardInterrupt  # train() writes a loadable run, then re-raises
 
     def _work(self) -> None:
-        from softpinn.learn._config import TrainConfig
-        from softpinn.learn._ensemble import NonFiniteStart
-        from softpinn.learn._train import TrainingDiverged, train
 
         spec = self._spec
         try:
@@ -90,7 +89,7 @@ class Trial(tune.Trainable):
             except NonFiniteStart:
                 raise
             except TrainingDiverged:
-                from softpinn.learn._checkpoint import read_json
+                from softpinn.learn import read_json
 
                 metrics = read_json(Path(spec["dir"]) / "metrics.json")
                 status = "diverged"

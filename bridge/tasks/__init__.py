@@ -2,7 +2,12 @@
 (:mod:`.plan`), the plan runs as resumable stages (:mod:`.stages`), and :func:`reproduce`
 (:mod:`.pipeline`) ties them together and writes the report."""
 
-from softpinn.bridge.tasks.pipeline import ReproduceResult, machine_description, notebook_run, reproduce
+from softpinn.bridge.tasks.pipeline import (
+    ReproduceResult,
+    machine_description,
+    notebook_run,
+    reproduce,
+)
 from softpinn.bridge.tasks.plan import TASKS, Plan, ReproduceConfig, Variant, make_plan
 from softpinn.bridge.tasks.stages import variant_model
 

@@ -40,9 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from softpinn.symbolic.spec._recipe import LOSS_KEYS, MODEL_KEYS
 from softpinn.bridge.base import outputs
-from softpinn.errors import UserError
 from softpinn.bridge.tasks import parallel
 from softpinn.bridge.tasks.experiment_stages import (
     rate_name,
@@ -55,6 +53,8 @@ from softpinn.bridge.tasks.experiment_stages import (
 )
 from softpinn.bridge.tasks.plan import MIN_WIDTH, ReproduceConfig, substeps_for
 from softpinn.bridge.tasks.stages import Stages, write_json
+from softpinn.errors import UserError
+from softpinn.symbolic import LOSS_KEYS, MODEL_KEYS, data_config, load_spec, sensor_config
 
 #: The state is reset from the processed measurement this often in the long predictions [s]
 #: (the paper's Figs. 15, 17: "3 seconds state updating").
@@ -134,8 +134,6 @@ class ExperimentPlan:
 
 def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
     """The plan from the preset's ``[data]``, ``[sensor]`` and ``[training]`` tables."""
-    from softpinn.symbolic.simulation._datatable import data_config
-    from softpinn.symbolic.spec._sensor import sensor_config
 
     sensor = sensor_config(spec)
     recipe = spec.recipe
@@ -206,7 +204,6 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
     """Run the experiment end to end into ``out_dir`` (see the module docstring); returns
     ``(out, report, plan, results, seconds)``. ``machine`` describes the computer in the
     report."""
-    from softpinn.symbolic.spec._spec import load_spec
 
     from softpinn.bridge.report.experiment import write_experiment_report
 
@@ -307,7 +304,6 @@ def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: 
 def _model_worker(config: ReproduceConfig, out: str, rate: float, prep: str,
                   kind: str) -> list[str]:
     """One model's stages in a ``--jobs`` worker (:mod:`.parallel`); returns the stages it ran."""
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(config.task)
     plan = make_experiment_plan(spec, config)

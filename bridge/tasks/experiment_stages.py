@@ -11,13 +11,38 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis import learned_matrices, true_matrices
+from softpinn.bridge.analysis.matrices import MatrixStack
+from softpinn.bridge.analysis.transforms import fit_transform
+from softpinn.learn import (
+    ModelConfig,
+    Pairs,
+    TrainConfig,
+    evaluate,
+    load_dataset,
+    load_ensemble,
+    make_pairs,
+    one_step_errors,
+    train,
+)
+from softpinn.symbolic import (
+    SensorConfig,
+    TrueModel,
+    import_recordings,
+    make_dataset,
+    parse_smoother,
+    read_dataset,
+    record,
+    write_csv,
+    write_dataset,
+)
+
 
 def rate_name(rate: float) -> str:
     return f"{rate:g}Hz"
 
 
 def stage_simulate(spec, plan, folder: Path) -> dict:
-    from softpinn.symbolic.simulation._datasets import make_dataset, write_dataset
 
     data = make_dataset(spec, data=dict(plan.data), integrator="cvodes", rate=plan.sim_rate)
     path = write_dataset(folder / "simulated.npz", data, force=True)
@@ -31,8 +56,6 @@ def stage_simulate(spec, plan, folder: Path) -> dict:
 
 
 def stage_record(spec, plan, rate: float, simulated: dict, folder: Path) -> dict:
-    from softpinn.symbolic.simulation._datafile import read_dataset
-    from softpinn.symbolic.spec._sensor import SensorConfig, record, write_csv
 
     sim = read_dataset(simulated["path"])
     raw = dict(plan.sensor)
@@ -79,9 +102,6 @@ def stage_import(spec, plan, recorded: dict, smooth: str, folder: Path, *,
     """Import the recording with one preprocessing (``softpinn import``'s library; smoother
     ``smooth``, central differences of order ``differences`` where it has no derivative) and keep
     the bending coordinates (:func:`bending_only`)."""
-    from softpinn.symbolic.simulation._datafile import write_dataset
-    from softpinn.symbolic.recorded._import import import_recordings
-    from softpinn.symbolic.recorded._filters import parse_smoother
 
     output = recorded["sensor"]["output"]
     res = import_recordings([recorded["csv"]], spec, orientation_kind=output, smooth=smooth,
@@ -103,7 +123,6 @@ def stage_import(spec, plan, recorded: dict, smooth: str, folder: Path, *,
 
 
 def _model_config(spec, plan, kind: str):
-    from softpinn.learn._models import ModelConfig
 
     m = plan.models[kind]
     return ModelConfig(kind=kind, n=2, m=spec.m, mass=tuple(m["mass"]),
@@ -114,8 +133,6 @@ def _model_config(spec, plan, kind: str):
 
 def stage_train(spec, plan, kind: str, rate: float, imported: dict,
                 folder: Path, progress) -> dict:
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import TrainConfig, train
 
     m = plan.models[kind]
     data = load_dataset(imported["path"])
@@ -175,10 +192,6 @@ def stage_predict(plan, kind: str, rate: float, imported: dict, recorded: dict,
                   trained: dict, folder: Path) -> dict:
     import jax.numpy as jnp
 
-    from softpinn.learn._data import load_dataset, make_pairs
-    from softpinn.learn._losses import Pairs
-    from softpinn.learn._predict import evaluate, one_step_errors
-    from softpinn.learn._train import load_ensemble
 
     data = load_dataset(imported["path"])
     test = [int(i) for i in imported["test"]]
@@ -245,13 +258,7 @@ def stage_predict(plan, kind: str, rate: float, imported: dict, recorded: dict,
 def stage_bending(spec, plan, imported: dict, trained: dict) -> dict:
     """The Lagrangian network's matrices (it learned the bending, dx and dy) against the true
     model's bending block at dL = 0, at q drawn from the training data."""
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import load_ensemble
-    from softpinn.symbolic.model._true_model import TrueModel
 
-    from softpinn.bridge.analysis import learned_matrices, true_matrices
-    from softpinn.bridge.analysis.matrices import MatrixStack
-    from softpinn.bridge.analysis.transforms import fit_transform
 
     data = load_dataset(imported["path"])
     rows = np.flatnonzero(np.isin(data.traj, np.asarray(imported["train"])))

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from softpinn.bridge.figures.figsave import draft_figures
 from softpinn.bridge.tasks.plan import ReproduceConfig
 from softpinn.bridge.tasks.stages import Stages
 
@@ -91,7 +92,6 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from softpinn.bridge.figures.figsave import draft_figures
 
     stages = Stages(Path(out), lambda line: _QUEUE.put(("log", key, line)))
 

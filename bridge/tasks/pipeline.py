@@ -41,8 +41,17 @@ from pathlib import Path
 from typing import Any
 
 from softpinn.bridge.base import outputs
+from softpinn.bridge.figures.figsave import draft_figures, is_draft
+from softpinn.bridge.figures.task import _variant_figures
 from softpinn.bridge.tasks import parallel
-from softpinn.bridge.tasks.plan import CHALLENGES, EXPERIMENTS, Plan, ReproduceConfig, make_plan, task_spec
+from softpinn.bridge.tasks.plan import (
+    CHALLENGES,
+    EXPERIMENTS,
+    Plan,
+    ReproduceConfig,
+    make_plan,
+    task_spec,
+)
 from softpinn.bridge.tasks.stages import (
     Stages,
     integration,
@@ -83,7 +92,6 @@ def reproduce(
     overwritten or removed). A quick run's figures are drafts (:mod:`bridge.figures.figsave`)."""
     if isinstance(config, str):
         config = ReproduceConfig(task=config)
-    from softpinn.bridge.figures.figsave import draft_figures
 
     with draft_figures(config.quick):  # a quick run's figures are drafts (no print copies)
         return _reproduce(config, out_dir, log=log, progress=progress, force=force)
@@ -207,8 +215,6 @@ def figure_stage(spec, plan: Plan, stages: Stages, vname: str, models: dict,
     lines that show them. Drawn again when a figure it drew is gone."""
     import re
 
-    from softpinn.bridge.figures.figsave import is_draft
-    from softpinn.bridge.figures.task import _variant_figures
 
     name = f"draw/{vname}"
     settings = {"models": models, "draft": is_draft(), "animate": first}

@@ -10,8 +10,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from softpinn.symbolic.spec._recipe import MODEL_KEYS
 from softpinn.errors import UserError
+from softpinn.symbolic import MODEL_KEYS, data_config, load_spec, physics_data_table
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 #: studies ``reproduce`` runs with their own pipeline (the paper's experiment: .experiment)
@@ -38,7 +38,6 @@ def default_epochs(spec, data: Mapping[str, Any], kind: str, batch_size: int) ->
     :data:`DEFAULT_STEPS` optimizer steps on the training pairs the ``[data]`` table makes (the
     most of its rates), 20 to 1,000 epochs. A fixed count would make a run on a large data set
     of one's own take hours (1,000 epochs of 40,000 pairs: 625,000 steps)."""
-    from softpinn.symbolic.simulation._datatable import data_config
 
     cfg = data_config(spec, data)
     trajectories = cfg.train_trajectories or 1
@@ -62,11 +61,9 @@ def task_spec(task: str, log=None):
     """The spec a ``reproduce`` of ``task`` runs: a preset, or a spec file of the user's. A spec
     without a ``[data]`` table gets the data ``softpinn simulate`` would draw for it, scaled to
     its physics (:mod:`symbolic.simulation._defaults`; the summary line goes to ``log``)."""
-    from softpinn.symbolic.spec._spec import load_spec
 
     spec = load_spec(task)
     if not spec.data:
-        from softpinn.symbolic.simulation._defaults import physics_data_table
 
         table, summary = physics_data_table(spec)
         spec = dataclasses.replace(spec, data=table)

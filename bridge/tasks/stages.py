@@ -14,7 +14,30 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.bridge.analysis import analysis_q, analyze
+from softpinn.bridge.analysis.floors import drift_baseline, integration_floor
+from softpinn.bridge.analysis.forces import data_samples
+from softpinn.bridge.analysis.modes import modes
+from softpinn.bridge.exact.serialize import spec_known_input
+from softpinn.bridge.figures.analysis import summary_numbers, write_report
 from softpinn.bridge.tasks.plan import REPORT_WEIGHT, Plan, Variant, data_step, own_substeps
+from softpinn.errors import UserError as LearnUserError
+from softpinn.learn import (
+    ModelConfig,
+    Pairs,
+    TrainConfig,
+    evaluate,
+    load_dataset,
+    load_ensemble,
+    make_pairs,
+    mass_scale,
+    one_step_errors,
+    resolve_momenta,
+    rollouts,
+    train,
+    trajectories,
+)
+from softpinn.symbolic import TrueModel, make_dataset, resample, select_trajectories, write_dataset
 
 # ---------------------------------------------------------------------------------- stages
 
@@ -118,12 +141,6 @@ class Stages:
 
 
 def stage_data(spec, plan: Plan, folder: Path) -> dict:
-    from softpinn.symbolic.simulation._datasets import (
-        make_dataset,
-        resample,
-        select_trajectories,
-        write_dataset,
-    )
 
     out: dict[str, Any] = {"variants": {}}
     sources = {v.source for v in plan.variants}
@@ -160,8 +177,6 @@ def stage_data(spec, plan: Plan, folder: Path) -> dict:
 
 def _model_config(spec, plan: Plan, kind: str, data, train_ids):
     """The model of ``kind``; ``data`` (a learn Dataset) and ``train_ids`` set mass_init."""
-    from softpinn.learn._data import mass_scale
-    from softpinn.learn._models import ModelConfig
 
     m = plan.models[kind]
     mass_init = None
@@ -173,7 +188,6 @@ def _model_config(spec, plan: Plan, kind: str, data, train_ids):
     if kind != "blackbox":
         extra["damping_form"] = str(m.get("damping_form", "network"))
         if m.get("known_input"):  # the recipe's known actuator model: this spec's own A(q)
-            from softpinn.bridge.exact.serialize import spec_known_input
 
             extra.update(input_form="known", known_input=spec_known_input(spec)[0])
     return ModelConfig(
@@ -186,7 +200,6 @@ def _model_config(spec, plan: Plan, kind: str, data, train_ids):
 def _same_run(run_dir: Path, tc) -> bool:
     """Whether ``run_dir`` holds a checkpoint of a run with exactly the settings ``tc`` (one
     interrupted before it finished is resumed; one of other settings is trained afresh)."""
-    from softpinn.learn._train import TrainConfig
 
     if not ((run_dir / "checkpoint.eqx").is_file() or any(run_dir.glob("seed-*/checkpoint.eqx"))):
         return False
@@ -224,10 +237,6 @@ def stage_train(spec, plan: Plan, kind: str, m: Mapping[str, Any], files: dict, 
     otherwise (e.g. ``input_form="known"`` with ``known_input``, the known-A study)."""
     import dataclasses
 
-    from softpinn.learn._data import load_dataset
-    from softpinn.errors import UserError as LearnUserError
-    from softpinn.learn._train import TrainConfig, train
-    from softpinn.learn._velocity import resolve_momenta
 
     role = "blackbox" if kind == "blackbox" else "physics"
     f = files[role]
@@ -281,10 +290,6 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     rollout: the first part is the horizon's), and rollouts with another step size."""
     import jax.numpy as jnp
 
-    from softpinn.learn._data import load_dataset, make_pairs, trajectories
-    from softpinn.learn._losses import Pairs
-    from softpinn.learn._predict import evaluate, one_step_errors, rollouts
-    from softpinn.learn._train import load_ensemble
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     data = load_dataset(f["path"])
@@ -378,10 +383,7 @@ def integration(m: Mapping[str, Any]) -> dict[str, Any]:
 def stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
     """On the test pairs: the true model's one-step loss, stepped as the model is (the floor),
     and the loss of a model that learned no forces (floors.py)."""
-    from softpinn.learn._data import load_dataset, make_pairs
-    from softpinn.symbolic.model._true_model import TrueModel
 
-    from softpinn.bridge.analysis.floors import drift_baseline, integration_floor
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     state = "momentum" if kind == "hamiltonian" else "velocity"
@@ -400,11 +402,7 @@ def stage_floor(spec, kind: str, m: Mapping[str, Any], files: dict) -> dict:
 def stage_modes(spec, kind: str, files: dict, trained: dict) -> dict:
     """Eigenvalues of the true and the learned (first seed) dynamics linearised at rest at the
     training data's mean q with its mean input (modes.py)."""
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import load_ensemble
-    from softpinn.symbolic.model._true_model import TrueModel
 
-    from softpinn.bridge.analysis.modes import modes
 
     f = files["blackbox" if kind == "blackbox" else "physics"]
     data = load_dataset(f["path"])
@@ -449,12 +447,7 @@ def _truncated_error(rollout: dict, horizon: float) -> float:
 def stage_analyze(spec, plan: Plan, trained: dict, files: dict, folder: Path) -> dict:
     """Every seed's learned matrices against the true ones at the same q: the first seed's
     analysis in ``folder`` (the report's headline), each further seed's in ``folder/seed-S``."""
-    from softpinn.learn._data import load_dataset
-    from softpinn.learn._train import load_ensemble
-    from softpinn.symbolic.model._true_model import TrueModel
 
-    from softpinn.bridge.analysis import analysis_q, analyze, summary_numbers, write_report
-    from softpinn.bridge.analysis.forces import data_samples
 
     true = TrueModel(spec)
     q, k = analysis_q(spec, count=plan.analysis_points, seed=0)

@@ -426,8 +426,8 @@ def make_dataset(
         "max_mass_condition": res.info.get("max_mass_condition"),
         "compiled": is_compiled,
         "compiled_from_cache": from_cache,
-        "package_version": _version("softpinn"),
-        "casadi_version": _version("casadi"),
+        "package_version": package_version("softpinn"),
+        "casadi_version": package_version("casadi"),
         "numpy_version": np.__version__,
         "timings_s": timings,
     }
@@ -435,7 +435,7 @@ def make_dataset(
     return DatasetArrays(meta=meta, **arrays)
 
 
-def _version(dist: str) -> str | None:
+def package_version(dist: str) -> str | None:
     try:
         return metadata.version(dist)
     except metadata.PackageNotFoundError:

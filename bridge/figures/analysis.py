@@ -19,19 +19,26 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.errors import UserError
+from softpinn.bridge.analysis.compare import AnalysisResult
+from softpinn.bridge.analysis.excitation import markdown_lines as excitation_lines
+from softpinn.bridge.analysis.forces import markdown_lines as force_lines
+from softpinn.bridge.analysis.transform_result import Status, match_word
+from softpinn.bridge.analysis.transforms import to_jsonable
 from softpinn.bridge.figures.matrices import (
     plot_entries_scatter,
     plot_forces,
     plot_sweeps,
     plot_transform_entries,
 )
-from softpinn.bridge.figures.tables import summary_table, to_markdown, transform_table, write_table
-from softpinn.bridge.analysis.compare import AnalysisResult
-from softpinn.bridge.analysis.excitation import markdown_lines as excitation_lines
-from softpinn.bridge.analysis.forces import markdown_lines as force_lines
-from softpinn.bridge.analysis.transform_result import Status, match_word
-from softpinn.bridge.analysis.transforms import to_jsonable
+from softpinn.bridge.figures.tables import (
+    Table,
+    summary_table,
+    to_markdown,
+    transform_table,
+    write_table,
+)
+from softpinn.errors import UserError
+from softpinn.learn.plots import coordinate_unit
 
 __all__ = ["summary_numbers", "write_report"]
 
@@ -93,7 +100,6 @@ def write_report(
         names = result.meta.get("coordinates")
         label = None
         if widest is not None and names:
-            from softpinn.learn.plots import coordinate_unit
 
             unit = coordinate_unit(names[widest], result.meta.get("model_kind"))
             label = f"{names[widest]} [{unit}]" if unit else names[widest]
@@ -194,7 +200,6 @@ def _scatter_rows(result) -> dict:
 
 
 def _first_q(table, k):
-    from softpinn.bridge.figures.tables import Table
 
     rows = table.rows[: k * table.block_rows] if table.block_rows else table.rows[:k]
     return Table(table.spans, rows, block_rows=table.block_rows)
