@@ -22,12 +22,8 @@ never pulls jax and casadi in together unless asked::
 from __future__ import annotations
 
 import importlib
-from importlib import metadata as _metadata
 
-try:
-    __version__ = _metadata.version("softpinn")
-except _metadata.PackageNotFoundError:  # pragma: no cover - running from an uninstalled tree
-    __version__ = "0+unknown"
+from softpinn._version import __version__
 
 #: name -> module that defines it; resolved on first access (PEP 562).
 _LAZY = {

@@ -6,7 +6,8 @@ Parts (each in its own process, so that the XLA thread flags apply before jax is
   PCC arms of 1 and 2 segments, batch 10,000, float64, on ONE core (``sched_setaffinity`` and
   XLA's single-thread flags): CasADi's interpreter (``TrueModel.qdd`` batched), CasADi's
   compiled C with ``map`` (serial), the JAX translation (``jit(vmap)``); translate, trace and
-  XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.codegen._kernel` (build time in a
+  XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.codegen._kernel` (build
+time in a
   fresh cache, per-state time), ``TrueModel.qdd`` on the batch (the kernel); the largest
   differences. ``--segments 4`` adds a 4-segment arm (kernel build and speed; XLA with
   ``--xla-segments``).
@@ -110,7 +111,7 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool =
                                         label="jax") / batch * 1e6
         res["jax_cpu_per_state_us"] = CPU["jax"] / batch * 1e6
     fwd = em.functions["forward"]
-    # the batched C kernel (symbolic.codegen._kernel): generate + compile (fresh cache) + run, 1 core
+    # the batched C kernel (symbolic.codegen._kernel): generate, compile (fresh cache), run, 1 core
     from softpinn.symbolic.codegen import _kernel as kernel
 
     t0 = time.perf_counter()

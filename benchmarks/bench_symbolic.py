@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic.codegen._generate import expression_sizes
 from softpinn.symbolic.derivation._eom import derive
 from softpinn.symbolic.model._functions import functions
 from softpinn.symbolic.simulation._signals import Zero, sample_signal
@@ -116,8 +117,8 @@ def bench_arm(segments: int, batch: int, workdir: Path) -> dict:
         "compile_s": t_compile,
         "derive_and_compile_s": t_derive + t_functions + t_gen + (t_compile or 0.0),
         "c_source_bytes": source.stat().st_size,
-        "forward_size": codegen.expression_sizes(fwd),
-        "ode_size": codegen.expression_sizes(fns["ode"]),
+        "forward_size": expression_sizes(fwd),
+        "ode_size": expression_sizes(fns["ode"]),
         "forward_compiled_vs_vm_max_abs_diff": err,
         "forward_vm_per_call_us": per_call(fwd, args, 200) * 1e6,
         "forward_compiled_per_call_us": per_call(fwd_c, args, 2000) * 1e6 if cc else None,

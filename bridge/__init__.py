@@ -20,9 +20,9 @@ import importlib
 _LAZY = {
     "analyze": "softpinn.bridge.analysis",
     "ReproduceConfig": "softpinn.bridge.tasks",
-    "ReproduceResult": "softpinn.bridge.tasks",
+    "ReproduceResult": "softpinn.bridge.app",
     "make_plan": "softpinn.bridge.tasks",
-    "reproduce": "softpinn.bridge.tasks",
+    "reproduce": "softpinn.bridge.app",
 }
 
 __all__ = sorted(_LAZY)

@@ -12,7 +12,18 @@ Core API::
 
 from __future__ import annotations
 
-from softpinn.errors import UserError
+from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
+from softpinn.learn._baseline_errors import BaselineErrors, rollout_errors
+from softpinn.learn._baselines import (
+    ARX,
+    BASELINE_KINDS,
+    LinearSecondOrder,
+    NoMotion,
+    baseline_from_dict,
+    fit_arx,
+    fit_baseline,
+    fit_linear_second_order,
+)
 from softpinn.learn._checkpoint import (
     atomic_write_bytes,
     atomic_write_json,
@@ -30,7 +41,7 @@ from softpinn.learn._data import (
     mass_scale,
     trajectories,
 )
-from softpinn.learn._ensemble import NonFiniteStart
+from softpinn.learn._devices import resolve_devices
 from softpinn.learn._integrate import rk4_step, rollout, step
 from softpinn.learn._known_input import known_input_text, parse_known_input
 from softpinn.learn._losses import (
@@ -45,19 +56,24 @@ from softpinn.learn._losses import (
 )
 from softpinn.learn._models import DynamicsModel, ModelConfig, make_model
 from softpinn.learn._predict import evaluate, one_step_errors, predict, rollouts
-from softpinn.learn._programs import ProgramCache, resolve_devices
+from softpinn.learn._programs import ProgramCache
 from softpinn.learn._rundir import LoadedRun, dataset_info, load_ensemble, load_run
 from softpinn.learn._splits import recorded_test_split, split_trajectories
 from softpinn.learn._steptime import time_train_steps
+from softpinn.learn._stop import Stop, StopReason
 from softpinn.learn._sx_replay import KNOWN_OPS, PROGRAM_FORMAT, replay
-from softpinn.learn._train import TrainingDiverged, TrainResult, train
+from softpinn.learn._train import TrainResult, train
 from softpinn.learn._velocity import resolve_momenta
 
 __all__ = [
     "accel_loss",
+    "ARX",
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "BASELINE_KINDS",
+    "baseline_from_dict",
+    "BaselineErrors",
     "check_run_dir",
     "data_force_weights",
     "Dataset",
@@ -67,17 +83,22 @@ __all__ = [
     "equilibrium_forces",
     "evaluate",
     "file_sha256",
+    "fit_arx",
+    "fit_baseline",
+    "fit_linear_second_order",
     "GROUPS",
     "known_input_text",
     "KNOWN_OPS",
     "load_dataset",
     "load_ensemble",
     "load_run",
+    "LinearSecondOrder",
     "LoadedRun",
     "make_model",
     "make_pairs",
     "mass_scale",
     "ModelConfig",
+    "NoMotion",
     "NonFiniteStart",
     "one_step_errors",
     "pair_errors",
@@ -96,10 +117,13 @@ __all__ = [
     "RESUMABLE",
     "rk4_step",
     "rollout",
+    "rollout_errors",
     "rollout_loss",
     "rollouts",
     "split_trajectories",
     "step",
+    "Stop",
+    "StopReason",
     "time_train_steps",
     "train",
     "TrainConfig",

@@ -1,7 +1,8 @@
 """Run directories and checkpoints, written atomically.
 
-Every file is written to a temporary file in the same directory and installed with
-``os.replace``, so an interrupted run always leaves the last complete version of each file.
+Every file is written to a temporary file of its own in the same directory and installed with
+``os.replace`` (:mod:`softpinn.files`), so an interrupted run always leaves the last complete
+version of each file.
 Training state that must stay consistent (parameters, optimizer state, best parameters, epoch,
 history) lives in ONE file, ``checkpoint.eqx``: a JSON header line followed by the Equinox
 serialised leaves (``eqx.tree_serialise_leaves``), the pattern of Equinox's serialisation example.
@@ -10,7 +11,8 @@ Integrity: the header of every ``.eqx`` file carries the sha256 of its leaves (a
 of the header), checked when the file is read, so that a corrupted model or checkpoint is refused
 with one line instead of loading garbage. Every file written into a run directory is listed in
 its ``manifest.json`` (name -> sha256) before it is written; ``--force`` removes only those.
-JSON files never hold NaN or Infinity: non-finite numbers are written as null.
+JSON files never hold NaN or Infinity: non-finite numbers are written as null (the rule of
+:mod:`softpinn.files`).
 """
 
 from __future__ import annotations
@@ -19,15 +21,13 @@ import csv
 import hashlib
 import io
 import json
-import math
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import equinox as eqx
 
 from softpinn.errors import UserError
+from softpinn.files import atomic_write, json_text
 
 #: The list of files softpinn wrote into a run directory (name -> sha256).
 MANIFEST = "manifest.json"
@@ -51,39 +51,19 @@ def cannot_write(path: Path, exc: OSError) -> UserError:
     return UserError(f"{path}: cannot write there ({exc.strerror or exc})")
 
 
-def _umask() -> int:
-    """The process's file-creation mask (read by setting it and setting it back)."""
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def atomic_write_bytes(path: str | Path, data: bytes, *, record: bool = False) -> Path:
-    """Write ``data`` to ``path`` through a temporary file and ``os.replace``.
+    """Write ``data`` to ``path`` whole (:func:`softpinn.files.atomic_write`: a temporary file
+    of its own, fsync, ``os.replace``; an error leaves the previous file).
 
     ``record``: list the file in the ``manifest.json`` of its folder (run directories)."""
     path = Path(path)
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
         if record:
+            path.parent.mkdir(parents=True, exist_ok=True)
             _record(path, data)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        return atomic_write(path, data)
     except OSError as exc:
         raise cannot_write(path, exc) from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o666 & ~_umask())  # mkstemp's 0600 would hide runs from colleagues
-        os.replace(tmp, path)
-    except BaseException as exc:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        if isinstance(exc, OSError):
-            raise cannot_write(path, exc) from None
-        raise
-    return path
 
 
 def _record(path: Path, data: bytes) -> None:
@@ -92,7 +72,7 @@ def _record(path: Path, data: bytes) -> None:
     mpath = path.parent / MANIFEST
     files = read_manifest(path.parent) or {}
     files[path.name] = hashlib.sha256(data).hexdigest()
-    text = json.dumps({"format": "softpinn-manifest", "files": files}, indent=2) + "\n"
+    text = json_text({"format": "softpinn-manifest", "files": files})
     atomic_write_bytes(mpath, text.encode("utf-8"))
 
 
@@ -114,21 +94,10 @@ def atomic_write_text(path: str | Path, text: str, *, record: bool = False) -> P
     return atomic_write_bytes(path, text.encode("utf-8"), record=record)
 
 
-def finite_json(obj: Any) -> Any:
-    """``obj`` with every non-finite float replaced by None (JSON has no NaN or Infinity)."""
-    if isinstance(obj, dict):
-        return {k: finite_json(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [finite_json(v) for v in obj]
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
-
-
 def atomic_write_json(path: str | Path, obj: Any, *, record: bool = False) -> Path:
-    """Strict JSON (non-finite numbers as null), written atomically."""
-    text = json.dumps(finite_json(obj), indent=2, sort_keys=False, allow_nan=False) + "\n"
-    return atomic_write_text(path, text, record=record)
+    """Strict JSON (:func:`softpinn.files.json_text`: non-finite numbers as null), written
+    whole."""
+    return atomic_write_text(path, json_text(obj), record=record)
 
 
 def read_json(path: str | Path) -> Any:

@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from softpinn.learn._data import ACCEL_LABELS
 from softpinn.errors import UserError
+from softpinn.learn._data import ACCEL_LABELS
 from softpinn.learn._losses import ACCEL_SPACES
 from softpinn.learn._models import ModelConfig
 from softpinn.learn._velocity import MOMENTA
@@ -43,10 +43,6 @@ def _f(default, group: str, help: str, choices: tuple[str, ...] | None = None):
     return dataclasses.field(default=default, metadata=meta)
 
 
-class TrainingDiverged(UserError):
-    """The loss became NaN or inf; the last good checkpoint is kept."""
-
-
 @dataclass(frozen=True)
 class TrainConfig:
     """Everything that decides a training run (with the dataset and the seed).
@@ -61,10 +57,10 @@ class TrainConfig:
     all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
     ``clip_norm`` > 0 clips the global gradient norm.
-    ``init``: a run folder whose best model (the same :class:`learn._model_config.ModelConfig`) every
-    member starts from instead of a fresh initialisation: a warm start, e.g. a run of the
-    acceleration loss (eq. 10, cheap: no RK4 step) before the pair loss (eq. 8/9; issue 18's
-    fast Lagrangian training).
+    ``init``: a run folder whose best model (the same :class:`learn._model_config.ModelConfig`)
+    every member starts from instead of a fresh initialisation: a warm start, e.g. a run of the
+    acceleration loss (eq. 10, cheap: no RK4 step) before the pair loss (eq. 8/9; issue 18's fast
+    Lagrangian training).
     ``loss``: "pair" (eq. 8/9 with weight λ = ``loss_weight``, ``substeps`` RK4 steps per pair,
     ``input_hold`` "constant" or "linear"), "accel" (eq. 10; q̈ labels as ``accel_labels`` says:
     "recorded" in the file or "differences" of the velocities; on momentum data ṗ from

@@ -1,12 +1,12 @@
 """Dataset files: loading, validation, train/test split by trajectory, and training pairs.
 
-A dataset file (``.npz``, written by ``symbolic.simulation._datasets``) holds flat arrays over all samples of
-all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p`` (T, n), ``u`` (T, m), ``traj`` (T,)
-integer trajectory index, and ``meta``, a 0-d string of JSON; ``p`` may be left out (a
-recording has no momenta). A training pair is two consecutive
-samples of ONE trajectory (never across two); its step ``dt`` is read from ``t``, so
-variable-step data works. The pairs feed the one-step losses of eqs. 8 and 9 (state (q, q̇) or
-(q, p)), and the acceleration loss of eq. 10 (q̈ from the file).
+A dataset file (``.npz``, written by ``symbolic.simulation._datasets``) holds flat arrays over
+all samples of all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p`` (T, n), ``u`` (T, m),
+``traj`` (T,) integer trajectory index, and ``meta``, a 0-d string of JSON; ``p`` may be left
+out (a recording has no momenta). A training pair is two consecutive samples of ONE trajectory
+(never across two); its step ``dt`` is read from ``t``, so variable-step data works. The pairs
+feed the one-step losses of eqs. 8 and 9 (state (q, q̇) or (q, p)), and the acceleration loss of
+eq. 10 (q̈ from the file).
 """
 
 from __future__ import annotations
@@ -20,15 +20,16 @@ from typing import NamedTuple
 import numpy as np
 
 from softpinn.errors import UserError
+from softpinn.files import DATASET_EQUILIBRIUM, DATASET_OPTIONAL, DATASET_REQUIRED
 
-#: Arrays every dataset file must hold.
-REQUIRED_KEYS = ("t", "q", "qd", "qdd", "u", "traj", "meta")
+#: Arrays every dataset file must hold (:mod:`softpinn.files`, the rule symbolic reads by too).
+REQUIRED_KEYS = DATASET_REQUIRED
 #: Arrays a dataset file may hold: the momenta p = M(q) q̇ (simulated data hold them; without
 #: them a Hamiltonian network trains on the velocities, :mod:`learn._velocity`).
-OPTIONAL_KEYS = ("p",)
+OPTIONAL_KEYS = DATASET_OPTIONAL
 #: Optional arrays: static equilibria G(q*) = A(q*) u* (all three or none; docs/dataset.md), the
 #: labels of ``TrainConfig.equilibrium_weight`` and ``force_weight``.
-EQUILIBRIUM_KEYS = ("eq_q", "eq_u", "eq_force")
+EQUILIBRIUM_KEYS = DATASET_EQUILIBRIUM
 #: The two state layouts a model can ask for: (q, q̇) for Lagrangian and black-box models on
 #: velocity data, (q, p) for Hamiltonian models (eq. 7).
 STATE_KINDS = ("velocity", "momentum")

@@ -15,20 +15,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
 from softpinn.learn import _checkpoint as ckpt
-from softpinn.errors import UserError
+from softpinn.learn._members import select_members, stack, unstack
 from softpinn.learn._models import make_model
-from softpinn.learn._programs import Programs, select_members, stack, unstack
-from softpinn.learn._rundir import loss_plot, member_dir
-
-
-class TrainingDiverged(UserError):
-    """The loss became NaN or inf; the last good checkpoint is kept."""
-
-
-class NonFiniteStart(TrainingDiverged):
-    """The untrained model's loss is already NaN or inf: nothing can be trained (a fresh run
-    leaves no files behind)."""
+from softpinn.learn._programs import Programs
+from softpinn.learn._rundir import load_run, loss_plot, member_dir
+from softpinn.learn._stop import Stop, StopReason
+from softpinn.progress import TrainProgress
 
 
 @dataclass
@@ -102,7 +96,7 @@ class MemberGroup:
         self.bad = np.zeros(self.K, dtype=int)
         self.over = np.zeros(self.K, dtype=int)  # evaluations in a row above overfit x best
         self.active = np.ones(self.K, dtype=bool)
-        self.stopped = ["running"] * self.K
+        self.stops = [Stop(StopReason.RUNNING, "running")] * self.K
         self.history: list[list[dict]] = [[] for _ in range(self.K)]
         self.seconds = 0.0
         self.adam_done = False
@@ -122,7 +116,8 @@ class MemberGroup:
             "bad": self.bad.tolist(),
             "over": self.over.tolist(),
             "active": self.active.tolist(),
-            "stopped": self.stopped,
+            "stopped": [s.detail for s in self.stops],
+            "stop_reason": [s.reason.value for s in self.stops],
             "history": self.history,
             "seconds": self.seconds,
             "adam_done": self.adam_done,
@@ -146,7 +141,7 @@ class MemberGroup:
         self.bad = np.array(header["bad"], dtype=int)
         self.over = np.array(header.get("over", [0] * self.K), dtype=int)
         self.active = np.array(header["active"], dtype=bool)
-        self.stopped = list(header["stopped"])
+        self.stops = Stop.read_all(header)
         self.history = header["history"]
         self.seconds = float(header["seconds"])
         self.adam_done = bool(header["adam_done"])
@@ -159,7 +154,7 @@ class MemberGroup:
         cfg = self.prog.config
         if not (self.adam_done and self.epoch < cfg.epochs):
             return
-        done = [k for k in range(self.K) if self.stopped[k].startswith("completed")]
+        done = [k for k in range(self.K) if self.stops[k].reason is StopReason.COMPLETED]
         if not done:
             return
         if self.lbfgs_done:
@@ -170,7 +165,7 @@ class MemberGroup:
             )
         for k in done:
             self.active[k] = True
-            self.stopped[k] = "running"
+            self.stops[k] = Stop(StopReason.RUNNING, "running")
         self.adam_done = False
 
     @property
@@ -192,7 +187,7 @@ class MemberGroup:
             self.params = select_members(mask, params_prev, self.params)
             self.opt_state = select_members(mask, opt_prev, self.opt_state)
             for k in np.flatnonzero(bad_now):
-                self.stopped[k] = f"diverged at epoch {epoch} ({phase})"
+                self.stops[k] = Stop(StopReason.DIVERGED, f"diverged at epoch {epoch} ({phase})")
             self.active = self.active & ~bad_now
         if test_loss is not None:
             improved = self.active & (test_loss < self.best_loss)
@@ -205,23 +200,25 @@ class MemberGroup:
                 if cfg.patience is not None:
                     out = self.active & (self.bad >= cfg.patience)
                     for k in np.flatnonzero(out):
-                        self.stopped[k] = f"early stop at epoch {epoch} (patience {cfg.patience})"
+                        self.stops[k] = Stop(StopReason.PATIENCE, f"early stop at epoch {epoch} "
+                                             f"(patience {cfg.patience})")
                     self.active = self.active & ~out
                 if cfg.overfit is not None:
                     above = self.active & (test_loss > cfg.overfit * self.best_loss)
                     self.over = np.where(above, self.over + 1, 0)
                     out = self.active & (self.over >= cfg.overfit_evals)
                     for k in np.flatnonzero(out):
-                        self.stopped[k] = (
+                        self.stops[k] = Stop(StopReason.OVERFIT, (
                             f"early stop at epoch {epoch} (overfit: test loss above "
                             f"{cfg.overfit:g}x its best, {self.best_loss[k]:.4g} at epoch "
-                            f"{self.best_epoch[k]}, for {cfg.overfit_evals} evaluations)")
+                            f"{self.best_epoch[k]}, for {cfg.overfit_evals} evaluations)"))
                     self.active = self.active & ~out
             if cfg.target_loss is not None:
                 out = self.active & (test_loss <= cfg.target_loss)
                 for k in np.flatnonzero(out):
-                    self.stopped[k] = (f"reached test loss {test_loss[k]:.4g} <= "
-                                       f"{cfg.target_loss:g} at epoch {epoch} ({phase})")
+                    self.stops[k] = Stop(StopReason.TARGET, (
+                        f"reached test loss {test_loss[k]:.4g} <= {cfg.target_loss:g} at "
+                        f"epoch {epoch} ({phase})"))
                 self.active = self.active & ~out
         for k in range(self.K):
             if bad_now[k] or not was_active[k]:
@@ -287,8 +284,9 @@ class MemberGroup:
                     self.save()
             if not self.adam_done:
                 for k in range(self.K):
-                    if self.stopped[k] == "running":
-                        self.stopped[k] = f"completed {self.epoch} epochs"
+                    if self.stops[k].reason is StopReason.RUNNING:
+                        self.stops[k] = Stop(StopReason.COMPLETED,
+                                             f"completed {self.epoch} epochs")
                 self.adam_done = True
                 self.save()
             if cfg.lbfgs_steps > self.lbfgs_done:
@@ -306,7 +304,8 @@ class MemberGroup:
         self.history = [[r for r in h if r["phase"] != "lbfgs"] for h in self.history]
         # start from the best AdamW parameters of every member that did not diverge or reach
         # the target test loss already
-        ok = np.array([not s.startswith(("diverged", "reached")) for s in self.stopped])
+        ok = np.array([s.reason not in (StopReason.DIVERGED, StopReason.TARGET)
+                       for s in self.stops])
         self.params = self.best
         state = prog.lbfgs_init(self.params)
         active = ok.copy()
@@ -335,9 +334,9 @@ class MemberGroup:
 
     def _diverged_message(self) -> str:
         which = [
-            f"seed {s}: {st}"
-            for s, st in zip(self.seeds, self.stopped, strict=True)
-            if st.startswith("diverged")
+            f"seed {s}: {st.detail}"
+            for s, st in zip(self.seeds, self.stops, strict=True)
+            if st.reason is StopReason.DIVERGED
         ]
         return (
             f"training stopped: the loss became NaN/inf ({'; '.join(which)}); "
@@ -358,21 +357,24 @@ class MemberGroup:
             "settings (eps, mass_init)"
         )
 
-    def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None):
-        return {
-            "label": label,
-            "seeds": self.seeds,
-            "epoch": int(epoch),
-            "epochs": self.prog.config.epochs,
-            "phase": phase,
-            "lbfgs_steps": self.prog.config.lbfgs_steps,
-            "lbfgs_done": lbfgs_done,
-            "train_loss": [float(x) for x in tr],
-            "test_loss": None if te is None else [float(x) for x in te],
-            "best_test_loss": [float(x) for x in self.best_loss],
-            "active": self.active.tolist(),
-            "seconds": self.seconds,
-        }
+    def _progress_info(self, label, epoch, tr, te, phase, lbfgs_done=None) -> TrainProgress:
+        cfg = self.prog.config
+        lbfgs = phase == "lbfgs"
+        return TrainProgress(
+            done=int(lbfgs_done if lbfgs else epoch),
+            total=cfg.lbfgs_steps if lbfgs else cfg.epochs,
+            unit="iteration" if lbfgs else "epoch",
+            label=label,
+            phase=phase,
+            epoch=int(epoch),
+            epochs=cfg.epochs,
+            seeds=tuple(int(s) for s in self.seeds),
+            train_loss=tuple(float(x) for x in tr),
+            test_loss=None if te is None else tuple(float(x) for x in te),
+            best_test_loss=tuple(float(x) for x in self.best_loss),
+            active=tuple(bool(a) for a in self.active),
+            seconds=float(self.seconds),
+        )
 
     def member_model(self, k: int):
         return eqx.combine(unstack(self.best, k), self.prog.static)
@@ -382,8 +384,6 @@ class MemberGroup:
 def initial_model(run_dir: str, model_config):
     """The best model of the run in ``run_dir`` (``TrainConfig.init``), which must have the
     network ``model_config``."""
-    from softpinn.learn._rundir import load_run
-
     if not Path(run_dir).is_dir():
         raise UserError(f"init: {run_dir} is not a run folder")
     run = load_run(run_dir)
@@ -428,14 +428,16 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
         "final_test_loss": last["test_loss"],
         "epochs_run": int(g.epoch),
         "lbfgs_steps": int(g.lbfgs_done),
-        "stopped": g.stopped[k],
+        "stopped": g.stops[k].detail,
+        "stop_reason": g.stops[k].reason.value,
         "seconds": round(g.seconds, 3),
         "train_pairs": n_train,
         "test_pairs": n_test,
     }
-    if interrupted and g.stopped[k] == "running":
+    if interrupted and g.stops[k].reason is StopReason.RUNNING:
         lbfgs = f" + {int(g.lbfgs_done)} L-BFGS iterations" if g.lbfgs_done else ""
         metrics["stopped"] = f"interrupted at epoch {int(g.epoch)}{lbfgs} (--resume continues)"
+        metrics["stop_reason"] = StopReason.INTERRUPTED.value
     ckpt.save_tree(mdir / "model.eqx", eqx.filter(model, eqx.is_array), {"seed": seed},
                    record=True)
     ckpt.write_history(mdir / "history.csv", hist, record=True)

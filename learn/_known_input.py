@@ -22,6 +22,7 @@ from typing import Any
 
 import equinox as eqx
 import jax.numpy as jnp
+import numpy as np
 
 from softpinn.errors import UserError
 from softpinn.learn._sx_replay import PROGRAM_FORMAT, check_program, run_program
@@ -82,8 +83,6 @@ def known_input_text(value: Any) -> str:
     if isinstance(value, dict) and value.get("format") == PROGRAM_FORMAT:
         d = {"kind": "program", "program": value}
     else:
-        import numpy as np
-
         a = np.asarray(value, dtype=np.float64)
         if a.ndim != 2:
             raise UserError(f"known input: expected an n x m matrix, got shape {a.shape}")

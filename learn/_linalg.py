@@ -41,7 +41,7 @@ def mv(A, x):
     Under ``vmap`` a batch of tiny ``dot``s runs slowly on CPU; an elementwise product and a
     reduction fuse with their neighbours instead.
     """
-    return jnp.sum(A * x, axis=-1)
+    return jnp.sum(A * x[..., None, :], axis=-1)
 
 
 def mtv(A, x):
@@ -112,8 +112,10 @@ def solve_lower(L, b, inv_diag=None):
         xs.append(xi)
         if i < n - 1:
             # remove column i's contribution from the remaining rows (row i itself becomes 0)
-            col = L[:, i] if b.ndim == 1 else L[:, i : i + 1]
-            r = r - col * xi
+            if b.ndim == 1:
+                r = r - L[:, i] * xi
+            else:
+                r = r - L[:, i : i + 1] * xi[None, :]
     return jnp.stack(xs)
 
 
@@ -131,8 +133,10 @@ def solve_lower_transpose(L, b, inv_diag=None):
         xs[i] = xi
         if i > 0:
             # column i of Lᵀ is row i of L (entries below row i of Lᵀ are zero)
-            row = L[i, :] if b.ndim == 1 else L[i, :, None]
-            r = r - row * xi
+            if b.ndim == 1:
+                r = r - L[i, :] * xi
+            else:
+                r = r - L[i, :, None] * xi[None, :]
     return jnp.stack(xs)
 
 

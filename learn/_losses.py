@@ -22,8 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from softpinn.errors import UserError
+from softpinn.learn._data import difference_accelerations
 from softpinn.learn._integrate import rollout, step
 from softpinn.learn._linalg import cho_solve
+from softpinn.learn._models import _apply, _potential_grad
 
 __all__ = [
     "Pairs",
@@ -145,7 +147,7 @@ def accel_errors(model, pairs: Pairs, space: str = "acceleration", weights=None)
         d = jax.vmap(lambda q, v: _mass_times(model, q, v))(
             jnp.asarray(pairs.x0[:, :n], f.dtype), d[:, n:])
         if weights is not None:
-            d = d * jnp.asarray(weights, f.dtype)
+            d = d * jnp.asarray(weights, f.dtype)[None, :]
     elif space != "acceleration":
         raise UserError(f"space: expected one of {list(ACCEL_SPACES)}, got {space!r}")
     return jnp.sum(d * d, axis=-1)
@@ -177,8 +179,6 @@ def data_force_weights(model, data, traj_ids, labels: str = "differences") -> tu
     """:func:`force_weights` over every sample of trajectories ``traj_ids`` of a
     :class:`learn._data.Dataset`, with q̈ labels as loss accel takes them (``labels``
     "recorded": the file's qdd; "differences": central differences of its q̇)."""
-    from softpinn.learn._data import difference_accelerations
-
     rows = np.concatenate([data.indices(int(k)) for k in traj_ids])
     qdd = difference_accelerations(data) if labels == "differences" else data.qdd
     return tuple(float(w) for w in force_weights(model, data.q[rows], qdd[rows]))
@@ -237,8 +237,6 @@ class Equilibria(NamedTuple):
 
 def equilibrium_forces(model, eq: Equilibria):
     """The model's G(q*) (K, n) and A(q*) u* (K, n) at the labelled equilibria."""
-    from softpinn.learn._models import _apply, _potential_grad
-
     if not hasattr(model, "potential") or not hasattr(model, "input_map"):
         raise UserError(f"equilibrium labels weigh G and A of a physics model; a "
                         f"{model.config.kind} model has none")
@@ -279,8 +277,6 @@ def equilibria_of(data, dtype=None) -> Equilibria:
     if getattr(data, "eq_q", None) is None or data.equilibria == 0:
         raise UserError(f"dataset file {data.path} holds no static equilibria (eq_q, eq_u, "
                         "eq_force): simulate it with --equilibria K")
-    import numpy as np
-
     scale = float(np.mean(np.sum(data.eq_force ** 2, axis=1)))
     a = lambda x: jnp.asarray(x, dtype)
     return Equilibria(a(data.eq_q), a(data.eq_u), a(data.eq_force), a(scale if scale > 0 else 1.0))

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from softpinn.errors import UserError
+from softpinn.learn._known_input import parse_known_input
 from softpinn.learn._nets import ACTIVATIONS
 
 __all__ = ["KINDS", "ModelConfig"]
@@ -56,8 +57,8 @@ class ModelConfig:
     ``input_form``: A(q) as a "network", a learned "constant", or "known": fixed, not learned
     (Section VI-B's known actuator model, which pins the scale and frame of M, D, G), given by
     ``known_input``, JSON text of a constant n x m matrix or of the exact A(q) as an instruction
-    program (:mod:`learn._known_input`; :func:`learn._known_input.known_input_text` writes it). The text is
-    part of the configuration, so a run's ``config.json`` rebuilds the model on its own.
+    program (:mod:`learn._known_input`; :func:`learn._known_input.known_input_text` writes it). The
+    text is part of the configuration, so a run's ``config.json`` rebuilds the model on its own.
     """
 
     kind: str
@@ -107,8 +108,6 @@ class ModelConfig:
             if not isinstance(self.known_input, str):
                 raise UserError("input_form 'known' needs known_input: the known matrix A(q) "
                                 "(learn._known_input.known_input_text)")
-            from softpinn.learn._known_input import parse_known_input
-
             parse_known_input(self.known_input, self.n, self.m)
         elif self.known_input is not None:
             raise UserError(f"known_input is given but input_form is {self.input_form!r}; "

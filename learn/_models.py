@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 
 from softpinn.errors import UserError
+from softpinn.learn._known_input import KnownMatrix
 from softpinn.learn._linalg import cho_inverse, cho_solve, cholesky, mtv, mv
 from softpinn.learn._model_config import KINDS, ModelConfig
 from softpinn.learn._nets import (
@@ -366,8 +367,6 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
     elif config.input_form == "network":
         input_map = MatrixField(n, n, m, *config.input, act, key=kA, dtype=dt)
     elif config.input_form == "known":
-        from softpinn.learn._known_input import KnownMatrix
-
         input_map = KnownMatrix(config.known_input, n, m)
     else:
         input_map = ConstantMatrix(n, m, key=kA, dtype=dt)

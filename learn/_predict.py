@@ -30,10 +30,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from softpinn.learn._data import Dataset, load_dataset, make_pairs, trajectories
 from softpinn.errors import UserError
+from softpinn.learn._data import Dataset, load_dataset, make_pairs, trajectories
 from softpinn.learn._integrate import rollout
 from softpinn.learn._losses import Pairs, pair_errors
+from softpinn.learn._rundir import load_run
+from softpinn.learn.plots import check_may_write, plot_rollout
 
 
 @dataclass
@@ -289,8 +291,6 @@ def evaluate(
     its kind)."""
     horizon = _check_positive("horizon", horizon, allow_none=False)
     if plot is not None:
-        from softpinn.learn.plots import check_may_write
-
         check_may_write(plot, force=force)
     reset_every = _check_positive("reset_every", reset_every)
     dt = _check_positive("dt", dt)
@@ -322,8 +322,6 @@ def evaluate(
         r_mean, r_std = float(np.mean(r)), float(np.std(r))
     plot_path = None
     if plot is not None:
-        from softpinn.learn.plots import plot_rollout
-
         ro = rolls[0]
         what = f"{label or cfg.kind}: trajectory {ro['id']} of {Path(str(data.path)).name}, " \
                f"horizon {horizon:g} s"
@@ -372,8 +370,6 @@ def predict(
     trained on, else every trajectory), "test", "all", or a list of ids. The one-step error uses
     the run's loss settings (λ, sub-steps, input hold). ``plot``/``force``: see :func:`evaluate`.
     """
-    from softpinn.learn._rundir import load_run
-
     run = load_run(run_dir, member=member)
     cfg = run.model_config
     if not isinstance(data, Dataset):

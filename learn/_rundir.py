@@ -12,13 +12,14 @@ import equinox as eqx
 import jax
 import numpy as np
 
+from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn._config import FORMAT, TrainConfig
 from softpinn.learn._data import (
     Dataset,
 )
-from softpinn.errors import UserError
 from softpinn.learn._models import ModelConfig, ensure_dtype, make_model
+from softpinn.learn.plots import plot_loss_curves
 
 # ------------------------------------------------------------------------------ run layout
 
@@ -43,8 +44,6 @@ def mean_std(values) -> dict:
 
 
 def loss_plot(run_dir, histories, labels):
-    from softpinn.learn.plots import plot_loss_curves
-
     plot_loss_curves(histories, run_dir / "loss.png", labels=labels, title=_plot_title(run_dir),
                      record=True)
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from softpinn.learn._data import Dataset
 from softpinn.errors import UserError
+from softpinn.learn._data import Dataset
 
 
 def recorded_test_split(data: Dataset) -> list[int] | None:

@@ -23,6 +23,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn import distributed
 from softpinn.learn._advice import setting_warnings, warn_setting
@@ -41,6 +42,7 @@ from softpinn.learn._data import (
     make_pairs,
     make_windows,
 )
+from softpinn.learn._devices import resolve_devices
 from softpinn.learn._ensemble import (
     MemberGroup,
     MemberResult,
@@ -48,16 +50,11 @@ from softpinn.learn._ensemble import (
     TrainingDiverged,
     finish_member,
 )
-from softpinn.errors import UserError
+from softpinn.learn._losses import equilibria_of
+from softpinn.learn._members import resolve_ensemble_mode
 from softpinn.learn._models import ensure_dtype
-from softpinn.learn._programs import (
-    PROGRAMS,
-    ProgramCache,
-    resolve_devices,
-    resolve_ensemble_mode,
-    to_pairs,
-    to_windows,
-)
+from softpinn.learn._objective import to_pairs, to_windows
+from softpinn.learn._programs import PROGRAMS, ProgramCache
 from softpinn.learn._rundir import (
     LoadedRun,
     aggregate_metrics,
@@ -70,6 +67,7 @@ from softpinn.learn._rundir import (
 )
 from softpinn.learn._splits import split_trajectories
 from softpinn.learn._velocity import resolve_momenta
+from softpinn.progress import ProgressFn
 
 __all__ = [
     "ENSEMBLE_MODES",
@@ -165,7 +163,7 @@ def train(
     config: TrainConfig | None,
     out_dir: str | Path,
     *,
-    progress: Callable[[dict], None] | None = None,
+    progress: ProgressFn | None = None,
     force: bool = False,
     resume: bool = False,
     programs: ProgramCache | None = None,
@@ -180,8 +178,9 @@ def train(
     ``resume=True`` continues the run in ``out_dir`` from its last checkpoint with its stored
     configuration (``config`` may be None; if given, it may differ from the stored one only in
     :data:`learn._config.RESUMABLE`, e.g. more ``epochs``, which are honoured). An existing,
-    non-empty ``out_dir`` is refused unless ``force`` or ``resume``. ``progress(info)`` is
-    called after every epoch with a dict of losses (the CLI draws a progress bar from it).
+    non-empty ``out_dir`` is refused unless ``force`` or ``resume``. ``progress(event)`` is
+    called after every epoch with a :class:`softpinn.progress.TrainProgress` (the CLI draws a
+    progress bar from it).
     Raises :class:`TrainingDiverged` on a NaN/inf loss (the last good checkpoint is kept);
     on KeyboardInterrupt it saves a checkpoint and re-raises. ``programs``: the cache of
     compiled programs to use (default: the process's, :data:`learn._programs.PROGRAMS`).
@@ -273,8 +272,6 @@ def train(
 
     labels = None
     if config.equilibrium_weight > 0 or config.force_weight > 0:
-        from softpinn.learn._losses import equilibria_of
-
         labels = equilibria_of(data, dtype)  # refused with one line when the file has none
     prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch, devices,
                         labels=labels)

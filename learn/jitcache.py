@@ -58,7 +58,7 @@ def _machine_key() -> str:
         parts += sorted(set(lines))
     except OSError:
         parts.append(platform.processor())
-    try:
+    try:  # jaxlib deferred: this module is read before JAX is imported (it configures JAX)
         import jaxlib
         import jaxlib.version
 
@@ -147,7 +147,7 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
     if env.get("JAX_COMPILATION_CACHE_DIR"):
         return Path(env["JAX_COMPILATION_CACHE_DIR"])
     if environ is None and "jax" in sys.modules:
-        import jax
+        import jax  # only where this process imported it already
 
         if jax.config.jax_compilation_cache_dir:  # set in this process (jax.config.update)
             return Path(jax.config.jax_compilation_cache_dir)
@@ -166,7 +166,7 @@ def enable_compile_cache(environ: MutableMapping[str, str] | None = None) -> Pat
     env.update({"JAX_COMPILATION_CACHE_DIR": str(folder),
                 "JAX_COMPILATION_CACHE_MAX_SIZE": str(limit)})
     if environ is None and "jax" in sys.modules:
-        import jax
+        import jax  # only where this process imported it already
 
         # JAX opens its cache at the first compilation after a folder is set (tested)
         jax.config.update("jax_compilation_cache_dir", str(folder))

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.learn._checkpoint import atomic_write_bytes
 from softpinn.errors import UserError
+from softpinn.learn._checkpoint import atomic_write_bytes
 
 SOFTWARE = "softpinn"
 _PNG = b"\x89PNG\r\n\x1a\n"
@@ -56,6 +56,7 @@ def _finite(a) -> np.ndarray:
 
 
 def _figure(rows: int = 1, cols: int = 1, *, size=(7.0, 4.0)):
+    # matplotlib is imported at the first figure, not with softpinn (slow to import)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -16,6 +16,7 @@ set before that, which :func:`use_fast_compile` checks.
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import MutableMapping
 
 #: The flags, each with the setting it gives.
@@ -44,11 +45,9 @@ def use_fast_compile(environ: MutableMapping[str, str] | None = None) -> bool:
 
 
 def _backend_started() -> bool:
-    import sys
-
     if "jax" not in sys.modules:
         return False
-    try:
+    try:  # only where this process imported JAX already (its flags are set before that)
         from jax._src import xla_bridge
     except ImportError:  # pragma: no cover - a JAX without this module: assume started
         return True

@@ -15,14 +15,9 @@ from __future__ import annotations
 from softpinn.errors import UserError
 from softpinn.symbolic._outputs import count_of, dumps
 from softpinn.symbolic.codegen import _kernel
-from softpinn.symbolic.codegen._codegen import (
-    CompilerWarning,
-    cache_dir,
-    compile_functions,
-    generate,
-    read_derive_summary,
-)
+from softpinn.symbolic.codegen._codegen import CompilerWarning, cache_dir, compile_functions
 from softpinn.symbolic.codegen._compiler import DEFAULT_FLAGS, find_compiler
+from softpinn.symbolic.codegen._generate import generate, read_derive_summary
 from softpinn.symbolic.codegen._kernel import RK4 as KernelRK4
 from softpinn.symbolic.codegen._kernel import available as kernels_available
 from softpinn.symbolic.codegen._kernel_source import expand as expand_sx
@@ -56,15 +51,16 @@ from softpinn.symbolic.simulation._equilibria import Equilibria, attach, equilib
 from softpinn.symbolic.simulation._farm import ray_init, ray_simulator
 from softpinn.symbolic.simulation._samples import condition_numbers, in_threads
 from softpinn.symbolic.simulation._signals import Signal
-from softpinn.symbolic.simulation._simulate import (
+from softpinn.symbolic.simulation._sim_config import (
     SimResult,
     SimulationConfig,
     SimulationError,
     SingularityError,
 )
+from softpinn.symbolic.spec._model_spec import ModelSpec, Segment, SpecError
 from softpinn.symbolic.spec._recipe import LOSS_KEYS, MODEL_KEYS
 from softpinn.symbolic.spec._sensor import SensorConfig, record, sensor_config, write_csv
-from softpinn.symbolic.spec._spec import ModelSpec, Segment, SpecError, list_presets, load_spec
+from softpinn.symbolic.spec._spec import list_presets, load_spec
 
 __all__ = [
     "_kernel",

@@ -1,4 +1,5 @@
-"""Shared test setup: float64 JAX before any array exists, a headless matplotlib, seeded keys."""
+"""Shared test setup: float64 JAX before any array exists, rank promotion an error, a headless
+matplotlib, seeded keys."""
 
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+# broadcasting arrays of different ranks is an error in the tests (as in diffrax and equinox):
+# every broadcast in learn and bridge is written out
+jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
 @pytest.fixture
@@ -62,7 +66,8 @@ def quick_runs(tmp_path_factory):
 
     def get(task):
         if task not in cache:
-            from softpinn.bridge.tasks import ReproduceConfig, reproduce
+            from softpinn.bridge.app import reproduce
+            from softpinn.bridge.tasks import ReproduceConfig
 
             # task 1 runs its two models side by side (--jobs 2): every test of its run
             # checks the parallel path's files; test_pipelines checks a serial call agrees

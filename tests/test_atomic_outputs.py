@@ -21,7 +21,7 @@ import pytest
 from softpinn.bridge.cli import main
 from softpinn.errors import UserError
 from softpinn.symbolic import _outputs as outputs
-from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic.codegen import _generate as generate
 from softpinn.symbolic.simulation import _datafile as datafile
 from softpinn.symbolic.simulation._datafile import read_dataset
 
@@ -87,7 +87,7 @@ def test_derive_interrupted_leaves_the_folder_as_it_was(tmp_path, capsys, monkey
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(codegen, "compile_c", interrupted)
+    monkeypatch.setattr(generate, "compile_c", interrupted)
     status, _, err = run(capsys, "derive", "task1", "--out", out)
     assert status == 130 and "interrupted" in err
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before

@@ -159,7 +159,7 @@ def test_analyze_says_true_is_nominal_for_recorded_data(tmp_path):
 
     import numpy as np
 
-    from softpinn.bridge.cli.bridge import _recorded_notes
+    from softpinn.bridge.cli._analyze_run import _recorded_notes
 
     spec = SimpleNamespace(name="myarm")
     for source, expect in (("import", 1), (None, 0)):
@@ -170,3 +170,21 @@ def test_analyze_says_true_is_nominal_for_recorded_data(tmp_path):
     assert "'true' is the nominal model myarm, not a measurement" in _recorded_notes(
         SimpleNamespace(info={"dataset": {"path": str(tmp_path / "import.npz")}}), spec)[0]
     assert _recorded_notes(SimpleNamespace(info={"dataset": {"path": None}}), spec) == []
+
+
+def test_the_manifest_is_written_whole_as_before(tmp_path, monkeypatch):
+    """The manifest goes through the one strict writer (``softpinn.files``): the same bytes as
+    before (indent 2, a newline at the end), no temporary file left, and a folder that cannot
+    be written is one line."""
+    out = outputs.claim(tmp_path / "o", "analyze")
+    text = (out / "manifest.json").read_text()
+    assert text == json.dumps({"format": "softpinn-manifest", "command": "analyze", "files": {},
+                               "complete": False}, indent=2) + "\n"
+    assert sorted(p.name for p in out.iterdir()) == ["manifest.json"]
+
+    def full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(outputs, "write_json", lambda path, obj: full())
+    with pytest.raises(UserError, match=r"manifest\.json: cannot write there \(No space left"):
+        outputs.record(out, [])

@@ -9,6 +9,7 @@ import types
 
 import pytest
 
+from softpinn.bridge.app import reproduce, runner, study_for
 from softpinn.bridge.challenges import pipeline
 from softpinn.bridge.cli import main
 from softpinn.bridge.tasks import ReproduceConfig
@@ -38,10 +39,12 @@ def fake_studies(monkeypatch):
         monkeypatch.setitem(sys.modules, mod.__name__, mod)
 
 
-def test_studies_run_once_and_the_report_gathers_them(fake_studies, tmp_path):
-    out, report, results, _ = pipeline.run_challenges(tmp_path / "ch", quick=True,
-                                                      machine="test box")
+def test_studies_run_once_and_the_report_gathers_them(fake_studies, tmp_path, monkeypatch):
+    monkeypatch.setattr(runner, "machine_description", lambda: "test box")
+    result = reproduce(ReproduceConfig("challenges", quick=True), tmp_path / "ch")
+    out, report = result.out_dir, result.report
     assert CALLS == [n for n, _ in pipeline.STUDIES]
+    assert result.plan is None and result.results["studies"]["fast"]["seconds"] == 1.5
     text = report.read_text()
     assert "**This is a quick run**" in text and "test box" in text
     # the targets table, met and missed as the studies said
@@ -50,15 +53,29 @@ def test_studies_run_once_and_the_report_gathers_them(fake_studies, tmp_path):
     # each study's section under the report's own heading, its headings one level down
     for name, title in pipeline.STUDIES:
         assert f"## {title}" in text and f"\n## {name} results" in text
-    assert json.loads((out / "results.json").read_text())["studies"]["fast"]["seconds"] == 1.5
+    saved = json.loads((out / "results.json").read_text())
+    assert saved == json.loads(json.dumps(result.results))
+    assert list(saved) == ["task", "quick", "seconds", "machine", "studies"]
+    assert saved["machine"] == "test box" and saved["studies"]["fast"]["seconds"] == 1.5
+    assert "markdown" not in saved["studies"]["fast"]
     manifest = json.loads((out / "manifest.json").read_text())
     assert "fast/figure.png" in json.dumps(manifest)
     # a second call reuses every finished study; another setting (full) runs them again
-    pipeline.run_challenges(out, quick=True)
+    reproduce(ReproduceConfig("challenges", quick=True), out)
     assert len(CALLS) == len(pipeline.STUDIES)
-    pipeline.run_challenges(out, quick=False)
+    reproduce(ReproduceConfig("challenges"), out)
     assert len(CALLS) == 2 * len(pipeline.STUDIES)
     assert "quick run" not in report.read_text()
+
+
+def test_the_registry_picks_each_tasks_study():
+    """``reproduce`` dispatches through the registry: the challenges and the experiment have
+    studies of their own, every paper task and a spec file of one's own the task pipeline."""
+    from softpinn.bridge.app.studies import ChallengesStudy, ExperimentStudy, TaskStudy
+
+    assert isinstance(study_for("challenges"), ChallengesStudy)
+    assert isinstance(study_for("experiment"), ExperimentStudy)
+    assert all(isinstance(study_for(t), TaskStudy) for t in ("task1", "task5", "my-arm.toml"))
 
 
 def test_a_users_folder_is_not_written_into(fake_studies, tmp_path, capsys):
@@ -85,7 +102,6 @@ def test_fast_recipe_goes_on_with_the_pair_loss_only_where_eq10_falls_short(
     pair loss from eq. 10's best model only where eq. 10 did not get there, its time counted
     after eq. 10's whole run."""
     from softpinn.bridge.challenges import fast
-    from softpinn.bridge.tasks import stages
 
     level = fast.paper_level()
     calls = []
@@ -110,7 +126,7 @@ def test_fast_recipe_goes_on_with_the_pair_loss_only_where_eq10_falls_short(
                 "history": hist, "config": {}, "load_after": "0"}
 
     monkeypatch.setattr(fast, "_train", fake_train)
-    monkeypatch.setattr(stages, "stage_data", lambda spec, plan, folder: {"variants": {
+    monkeypatch.setattr(fast, "stage_data", lambda spec, plan, folder: {"variants": {
         "main": {"physics": {"path": "x.npz", "train": [0], "test": [1]}}}})
     ttl = fast._time_to_loss(tmp_path, False, lambda s: None, None)
     assert ttl["level"] == level and ttl["level_is_paper"] and ttl["today_s"] == 300.0

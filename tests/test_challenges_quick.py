@@ -39,8 +39,54 @@ def test_every_study_reports_its_targets(quick_run):
         assert targets, f"{name} reports no targets"
         for t in targets:
             assert {"what", "target", "measured", "met"} <= set(t), (name, t)
-            assert t["met"] in (True, False), (name, t)
+            assert isinstance(t["met"], bool), (name, t)
+            # met or missed as the report prints the target and the measurement (open only
+            # where the printed numbers are equal: rounding hides which side they are on)
+            said = _met_as_printed(t["target"], t["measured"])
+            assert said is None or t["met"] is said, (name, t)
         assert (quick_run / name / "study.json").is_file()
+
+
+_NUMBER = re.compile(r"[-+]?\d+(?:\.\d*)?(?:e[-+]?\d+)?")
+
+
+def _leading_number(text: str) -> float | None:
+    """The number a measurement starts with ("3.10× (in FLOPs: ...)", "2.41 %", "1.2e-03");
+    None where it has none ("not reached", "–": no finite measurement)."""
+    m = _NUMBER.match(text.strip())
+    return float(m.group()) if m else None
+
+
+def _met_as_printed(target: str, measured: str) -> bool | None:
+    """Whether ``measured`` meets ``target`` ("≥ 4×", "≤ 3 %", "≤ 2.40e-03", "no worse": the
+    first of "a vs b" at most the second), read from the printed texts; None where the printed
+    numbers are equal (rounding is monotone, so unequal ones order as the exact ones do)."""
+    if target == "no worse":
+        a, b = (_leading_number(part) for part in measured.split(" vs "))
+        if a is None or b is None:
+            return False
+        return None if a == b else a <= b
+    op, bound = target[0], _leading_number(target[1:])
+    assert op in "≥≤" and bound is not None, f"a target this test cannot read: {target!r}"
+    value = _leading_number(measured)
+    if value is None:
+        return False
+    if value == bound:
+        return None
+    return value >= bound if op == "≥" else value <= bound
+
+
+def test_targets_are_read_as_the_report_prints_them():
+    """The reading above, on the forms the studies print (so a wrong ``met`` cannot pass)."""
+    assert _met_as_printed("≥ 4×", "4.52× (in FLOPs: 3.10×)") is True
+    assert _met_as_printed("≥ 3×", "not reached") is False
+    assert _met_as_printed("≤ 3 %", "12.41 %") is False
+    assert _met_as_printed("≤ 2.40e-03", "1.97e-03") is True
+    assert _met_as_printed("≤ 5 %", "– %") is False
+    assert _met_as_printed("no worse", "0.0123 vs 0.0456") is True
+    assert _met_as_printed("no worse", "0.0456 vs 0.0123") is False
+    assert _met_as_printed("no worse", "– vs 0.0123") is False
+    assert _met_as_printed("≤ 3 %", "3.00 %") is None
 
 
 def test_report_has_every_section_and_its_figures_exist(quick_run):

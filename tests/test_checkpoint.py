@@ -27,7 +27,7 @@ def test_failed_write_keeps_the_old_file(tmp_path, monkeypatch):
     def boom(src, dst):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(ckpt.os, "replace", boom)
+    monkeypatch.setattr(os, "replace", boom)
     with pytest.raises(KeyboardInterrupt):
         ckpt.atomic_write_bytes(p, b"half-written")
     monkeypatch.undo()

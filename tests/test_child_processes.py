@@ -117,10 +117,10 @@ def test_ctrl_c_during_a_cached_compile_leaves_no_build_folder(tmp_path):
 RUN_COMPILE = """
 import sys
 import casadi as ca
-from softpinn.symbolic import codegen
+from softpinn.symbolic import compile_functions
 q = ca.SX.sym("q", 2)
 fns = {"M": ca.Function("killed_M", [q], [ca.SX.eye(2) * (3 + ca.cos(q[1]))], ["q"], ["M"])}
-codegen.compile_functions(fns, directory=sys.argv[1], compiler=sys.argv[2], timeout=60)
+compile_functions(fns, directory=sys.argv[1], compiler=sys.argv[2], timeout=60)
 """
 
 

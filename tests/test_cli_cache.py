@@ -69,7 +69,7 @@ def test_cache_off_and_a_users_jax_folder(tmp_path, monkeypatch, capsys):
 
 
 def test_clear_says_what_it_could_not_remove(tmp_path, monkeypatch, capsys):
-    from softpinn.bridge.cli import cache
+    from softpinn.bridge.cli import _cache_run as cache
 
     _fill(tmp_path, monkeypatch)
 

@@ -186,14 +186,16 @@ def test_cli_user_errors(run, data, tmp_path, capsys):
 def test_progress_bars_count_epochs_then_lbfgs_iterations(capsys):
     """The epoch bar counts AdamW epochs; the L-BFGS finish gets a bar of its own that counts
     its iterations (the epoch bar used to stand still through it)."""
-    from softpinn.bridge.cli.bridge import _EpochBar
-    from softpinn.bridge.cli.learn import _Bar
+    from softpinn.bridge.cli.bars import EpochBar, TrainBar
+    from softpinn.progress import TrainProgress
 
     def info(phase, epoch, done=None):
-        return {"label": "0", "epoch": epoch, "epochs": 4, "phase": phase, "lbfgs_steps": 30,
-                "lbfgs_done": done, "train_loss": [1e-3], "test_loss": [2e-3]}
+        lbfgs = phase == "lbfgs"
+        return TrainProgress(done=done if lbfgs else epoch, total=30 if lbfgs else 4,
+                             unit="iteration" if lbfgs else "epoch", label="0", phase=phase,
+                             epoch=epoch, epochs=4, train_loss=(1e-3,), test_loss=(2e-3,))
 
-    for bar in (_Bar(4, disable=False), _EpochBar()):
+    for bar in (TrainBar(4, disable=False), EpochBar()):
         for e in range(1, 5):
             bar(info("adamw", e))
         for done in (10, 20, 30):
@@ -276,11 +278,11 @@ def test_an_interrupted_run_says_how_to_go_on(data, tmp_path, capsys):
 
     from datagen import blackbox_train_config
 
-    from softpinn.bridge.cli import _resume_hint
+    from softpinn.bridge.cli._messages import resume_hint as _resume_hint
     from softpinn.learn._train import train
 
-    def stop_at_2(info):
-        if info["epoch"] == 2:
+    def stop_at_2(event):
+        if event.epoch == 2:
             raise KeyboardInterrupt
 
     out = tmp_path / "cut"

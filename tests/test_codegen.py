@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic.codegen import _codegen as codegen
+from softpinn.symbolic.codegen._generate import generate
 
 
 def toy_functions(tag: str = "toy") -> dict[str, ca.Function]:
@@ -153,7 +154,7 @@ def test_compiler_failure_is_one_line(tmp_path):
 
 def test_generate_writes_source_library_casadi_files_and_summary(tmp_path):
     fns = toy_functions("gen")
-    summary = codegen.generate(
+    summary = generate(
         fns, tmp_path / "out", timings={"functions": 0.5}, cache=tmp_path / "cache"
     )
     # the library is installed in the cache too: compiling the same functions is a cache hit

@@ -16,6 +16,7 @@ from datagen import make_dataset, tiny_model_config
 from softpinn.bridge import cli
 from softpinn.bridge.control import (
     MPC,
+    ControlConfig,
     MPCConfig,
     closed_loop,
     compare,
@@ -30,7 +31,7 @@ from softpinn.bridge.control import (
 )
 from softpinn.bridge.control.models import PredictionModel
 from softpinn.errors import UserError
-from softpinn.symbolic.model._true_model import TrueModel
+from softpinn.symbolic import TrueModel
 
 #: the two-mass chain of task 1 with a force on the second mass: the system tests/datagen.py
 #: simulates, so runs trained on its data are models of this spec
@@ -63,7 +64,7 @@ def specs(tmp_path_factory):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """``get(kind, seeds=1)``: a tiny run on the forced chain's data, trained once per module."""
-    from softpinn.learn._train import TrainConfig, train
+    from softpinn.learn import TrainConfig, train
 
     data = make_dataset(tmp_path_factory.mktemp("msd") / "msd.npz", trajectories=3,
                         duration=2.0)
@@ -407,8 +408,8 @@ def test_default_input_bounds_cover_the_inputs_simulate_draws(tmp_path):
     range to spare: a multisine sums its components beyond one amplitude, a one-number
     amplitude stands for every input and a missing offset is 0 (they used to give no bounds)."""
     from softpinn.bridge.control import default_input_bounds
-    from softpinn.symbolic.simulation._datasets import make_dataset as simulate_data
-    from softpinn.symbolic.spec._spec import load_spec
+    from softpinn.symbolic import load_spec
+    from softpinn.symbolic import make_dataset as simulate_data
 
     path = tmp_path / "arm.toml"
     path.write_text(FULL + """
@@ -454,9 +455,10 @@ def test_circle_and_step_on_a_spatial_arm():
     """task 4 with the true model: the tip follows a horizontal circle to a tenth of a mm and
     settles on a step target (the reference holds it past the end: no step is anticipated)."""
     totals, steps = [], []
-    result = compare("task4", [], None, references=("circle", "step"), duration=0.4,
-                     config=MPCConfig(horizon=10), include_linear=False,
-                     progress=lambda: steps.append(len(totals)), progress_total=totals.append)
+    config = ControlConfig(mpc=MPCConfig(horizon=10), references=("circle", "step"),
+                           duration=0.4, include_linear=False)
+    result = compare("task4", [], None, config, progress=lambda: steps.append(len(totals)),
+                     progress_total=totals.append)
     assert totals == [40] and steps == [1] * 40  # the bar's total, told before the first step
     step = result["results"]["step"]["true"]
     assert step["error_max"] > 1e-3 and step["error_final"] < 1e-6, step
@@ -484,7 +486,7 @@ def test_learned_models_close_the_loop(specs, runs, tmp_path):
     out = tmp_path / "ctl"
     cfg = MPCConfig(horizon=8, dt=0.05, u_min=(-5.0,), u_max=(5.0,), codegen=False)
     result = compare(specs["forced"], [runs("lagrangian"), runs("hamiltonian")], out,
-                     config=cfg, duration=0.5)
+                     ControlConfig(mpc=cfg, duration=0.5))
     assert list(result["controllers"]) == ["true", "lagrangian", "hamiltonian", "linearised"]
     for rname in ("circle", "step"):
         for name, m in result["results"][rname].items():
@@ -534,8 +536,9 @@ def test_leaving_the_training_data_is_found_and_reported(specs, runs, tmp_path):
     assert _outside_lines({"true": {}}) == []
     # the comparison: learned controllers are checked, the true model is not
     cfg = MPCConfig(horizon=8, dt=0.05, u_min=(-5.0,), u_max=(5.0,), codegen=False)
-    result = compare(specs["forced"], [runs("lagrangian")], tmp_path / "c", config=cfg,
-                     duration=0.3, references=("step",), include_linear=False)
+    result = compare(specs["forced"], [runs("lagrangian")], tmp_path / "c",
+                     ControlConfig(mpc=cfg, duration=0.3, references=("step",),
+                                   include_linear=False))
     per = result["results"]["step"]
     assert "outside_data" not in per["true"]
     away = per["lagrangian"]["outside_data"]
@@ -651,7 +654,21 @@ def test_library_errors_are_user_errors(specs):
     with pytest.raises(UserError, match=r"offset_free: expected a gain in \[0, 1\]"):
         MPCConfig(offset_free=1.5)
     with pytest.raises(UserError, match="reference: expected one of"):
-        compare(specs["forced"], [], None, references=("square",))
+        ControlConfig(references=("square",))
+    for kw, expected in ((dict(references=()), "reference: give at least one reference"),
+                         (dict(radius=-1.0), "radius: expected a finite number >= 0"),
+                         (dict(period=0.0), "period: expected a number of seconds > 0"),
+                         (dict(hold=float("nan")), "hold: expected a number of seconds > 0"),
+                         (dict(duration=-2.0), "duration: expected a number of seconds > 0"),
+                         (dict(mpc={"horizon": 4}), "mpc: expected an MPCConfig")):
+        with pytest.raises(UserError, match=expected):
+            ControlConfig(**kw)
+    with pytest.raises(UserError, match="config: expected a ControlConfig"):
+        compare(specs["forced"], [], None, MPCConfig())
+    with pytest.raises(UserError, match="center: expected 2 finite coordinates"):
+        compare(specs["forced"], [], None, ControlConfig(center=(0.1, 0.2, 0.3)))
+    assert ControlConfig(references=["step", "circle", "step"], center=[0, 1]) == ControlConfig(
+        references=("step", "circle"), center=(0.0, 1.0))
     tm = TrueModel(specs["forced"])
     mpc = MPC(from_true(tm, tip_output(tm.spec)), MPCConfig(horizon=4, codegen=False))
     with pytest.raises(UserError, match=r"reference: expected shape \(4, 2\)"):

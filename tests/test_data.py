@@ -245,3 +245,27 @@ def test_the_split_the_file_records_is_the_default(tmp_path, arrays):
         meta = {"spec": {"name": "t"}, "splits": {"test": bad}}
         ds = load_dataset(write(tmp_path / "b.npz", arrays, meta))
         assert len(split_trajectories(ds, seed=0)[1]) == 1  # 20% of 3, at random
+
+
+def test_both_sides_read_a_file_by_the_same_keys(tmp_path, arrays):
+    """The dataset's keys live once (``softpinn.files``): symbolic and learn both require
+    ``t, q, qd, qdd, u, traj, meta`` and both take ``p`` as optional (a recording has no
+    momenta, docs/velocity.md); before, symbolic refused a file without ``p``."""
+    from softpinn import files
+    from softpinn.learn import _data
+    from softpinn.symbolic import read_dataset, select_trajectories
+
+    assert _data.REQUIRED_KEYS == files.DATASET_REQUIRED == (
+        "t", "q", "qd", "qdd", "u", "traj", "meta")
+    assert _data.OPTIONAL_KEYS == files.DATASET_OPTIONAL == ("p",)
+    no_p = _bad(tmp_path, arrays, p=None)
+    assert load_dataset(no_p).p is None
+    sim = read_dataset(no_p)
+    assert sim.p is None and "p" not in sim.arrays()
+    assert select_trajectories(sim, [1]).p is None
+    np.testing.assert_array_equal(read_dataset(_bad(tmp_path, arrays)).p, arrays["p"])
+    no_qdd = _bad(tmp_path, arrays, qdd=None)
+    with pytest.raises(UserError, match=r"missing key\(s\) qdd"):
+        load_dataset(no_qdd)
+    with pytest.raises(UserError, match=r"missing key\(s\) qdd"):
+        read_dataset(no_qdd)

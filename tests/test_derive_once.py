@@ -8,8 +8,10 @@ import json
 from softpinn.bridge.cli import main
 
 eom = importlib.import_module("softpinn.symbolic.derivation._eom")
-# the module, not the function ``softpinn.symbolic.model._functions`` that shadows it as an attribute
+# the module, not the function ``functions`` that shadows it as an attribute
 functions_mod = importlib.import_module("softpinn.symbolic.model._functions")
+# the command's own reference, taken from the symbolic face when its module loaded
+derive_run = importlib.import_module("softpinn.bridge.cli._derive_run")
 
 
 def test_derive_derives_once(tmp_path, monkeypatch, capsys):
@@ -22,6 +24,7 @@ def test_derive_derives_once(tmp_path, monkeypatch, capsys):
 
     monkeypatch.setattr(eom, "derive", counting)
     monkeypatch.setattr(functions_mod, "derive", counting)
+    monkeypatch.setattr(derive_run, "derive", counting)
     assert main(["derive", "task1", "--out", str(tmp_path / "d"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert len(calls) == 1

@@ -35,7 +35,8 @@ SCRIPT = textwrap.dedent("""
     from datagen import make_dataset
     from softpinn.learn._config import TrainConfig
     from softpinn.learn._models import ModelConfig
-    from softpinn.learn._programs import PROGRAMS, stack
+    from softpinn.learn._members import stack
+    from softpinn.learn._programs import PROGRAMS
     from softpinn.learn._train import load_run, train
     from pathlib import Path
     d = Path(sys.argv[1])

@@ -12,8 +12,7 @@ import pytest
 
 from softpinn.symbolic import TrueModel
 from softpinn.symbolic.derivation._eom import derive
-from softpinn.symbolic.model import _functions as functions
-from softpinn.symbolic.model._functions import _Builder
+from softpinn.symbolic.model._functions import _Builder, functions
 from softpinn.symbolic.spec._spec import spec_from_dict
 
 

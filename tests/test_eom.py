@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from softpinn.symbolic import TrueModel, UserError
-from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.model._functions import functions
 
 
 def test_mass_spring_damper_matches_eq25():

@@ -10,7 +10,7 @@ import pytest
 
 from softpinn.bridge.exact import jax_model, make_dataset, simulate
 from softpinn.symbolic import load_spec
-from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.model._functions import functions
 from softpinn.symbolic.simulation._datasets import (
     data_config,
     draw_trajectories,

@@ -58,7 +58,7 @@ def test_recipe_settings_the_experiment_does_not_use_are_refused(tmp_path, line)
 
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
-    from softpinn.bridge.tasks import reproduce
+    from softpinn.bridge.app import reproduce
 
     out = tmp_path_factory.mktemp("experiment")
     # its models side by side (--jobs 2): the checks below read what the workers wrote

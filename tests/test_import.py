@@ -1,4 +1,5 @@
-"""softpinn import (symbolic/recorded/_csv.py, symbolic/recorded/_import.py, bridge/cli/data.py): a simulated
+"""softpinn import (symbolic/recorded/_csv.py, symbolic/recorded/_import.py,
+bridge/cli/_import_run.py): a simulated
 data set written as CSV (configurations; tip orientation as quaternions and as roll-pitch-yaw)
 and imported back gives the same q, q̇ to the smoother's accuracy; every bad file is refused in
 one line naming the file, line and column, with exit status 2."""

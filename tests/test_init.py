@@ -254,11 +254,11 @@ def test_a_full_run_of_ones_own_arm_takes_about_50000_steps(tmp_path):
     pairs = d["train_trajectories"] * (round(d["duration"] * d["rate"]) - 1)
     steps = -(-pairs // plan.batch_size)
     for kind in ("lagrangian", "blackbox"):
-        assert plan.models[kind]["epochs"] == round(DEFAULT_STEPS / steps) == 80
+        assert plan.models[kind].epochs == round(DEFAULT_STEPS / steps) == 80
     # a recipe's own epochs win; so does --epochs
     text = path.read_text() + "\n[training.full.lagrangian]\nepochs = 7\n"
     path.write_text(text)
     plan = make_plan(task_spec(str(path)), ReproduceConfig(str(path)))
-    assert plan.models["lagrangian"]["epochs"] == 7 and plan.models["blackbox"]["epochs"] == 80
+    assert plan.models["lagrangian"].epochs == 7 and plan.models["blackbox"].epochs == 80
     plan = make_plan(task_spec(str(path)), ReproduceConfig(str(path), epochs=3))
-    assert plan.models["lagrangian"]["epochs"] == plan.models["blackbox"]["epochs"] == 3
+    assert plan.models["lagrangian"].epochs == plan.models["blackbox"].epochs == 3

@@ -1,8 +1,8 @@
-"""Batched C kernels (softpinn.symbolic.codegen._kernel): equal to CasADi to 1e-12 for every instruction
-they write (CasADi's C semantics: sign(0), if_else_zero with a NaN in the unused branch,
-comparisons as 1/0, non-finite constants), batches that are no multiple of the vector width,
-sparse and matrix outputs, the fallbacks (plain flags when the fast ones fail, None without a
-compiler) and the RK4 driver against CasADi's rk4."""
+"""Batched C kernels (softpinn.symbolic.codegen._kernel): equal to CasADi to 1e-12 for every
+instruction they write (CasADi's C semantics: sign(0), if_else_zero with a NaN in the unused branch,
+comparisons as 1/0, non-finite constants), batches that are no multiple of the vector width, sparse
+and matrix outputs, the fallbacks (plain flags when the fast ones fail, None without a compiler) and
+the RK4 driver against CasADi's rk4."""
 
 from __future__ import annotations
 
@@ -12,9 +12,10 @@ import pytest
 
 from softpinn.symbolic import load_spec
 from softpinn.symbolic.codegen import _kernel as kernel
-from softpinn.symbolic.model import _functions as functions
+from softpinn.symbolic.model._functions import functions
 from softpinn.symbolic.simulation._datasets import data_config, draw_trajectories
-from softpinn.symbolic.simulation._simulate import SimulationConfig, simulate
+from softpinn.symbolic.simulation._sim_config import SimulationConfig
+from softpinn.symbolic.simulation._simulate import simulate
 
 
 @pytest.fixture(autouse=True)
@@ -131,8 +132,8 @@ def test_rk4_equals_casadis_rk4_on_two_threads():
 
 @pytest.mark.parametrize("integrator", ["rk4", "cvodes"])
 def test_simulate_with_compiled_functions_uses_kernels(tmp_path, integrator):
-    """symbolic.simulation._simulate: with compiled functions the RK4 steps and q̈, p, M run in kernels
-    (the same numbers as CasADi's path on the uncompiled functions, to rounding)."""
+    """symbolic.simulation._simulate: with compiled functions the RK4 steps and q̈, p, M run in
+    kernels (the same numbers as CasADi's path on the uncompiled functions, to rounding)."""
     from softpinn.symbolic.codegen import _codegen as codegen
 
     spec = load_spec("task1")

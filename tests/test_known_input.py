@@ -283,7 +283,7 @@ def test_force_space_errors_are_mass_weighted_acceleration_errors(kind):
     # per-coordinate weights: each coordinate of the force residual times its weight
     w = jnp.asarray([0.5, 3.0])
     np.testing.assert_allclose(accel_errors(model, pairs, "force", w),
-                               jnp.sum((want * w) ** 2, axis=1), rtol=1e-10)
+                               jnp.sum((want * w[None, :]) ** 2, axis=1), rtol=1e-10)
 
 
 def test_force_weights_even_out_the_inertial_forces():

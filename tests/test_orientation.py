@@ -1,5 +1,6 @@
 """Tip orientation <-> bending of a one-segment PCC arm (symbolic/spec/_orientation.py), checked
-against the project's forward kinematics (symbolic/derivation/_kinematics.py, eq. 13): q -> tip rotation ->
+against the project's forward kinematics (symbolic/derivation/_kinematics.py, eq. 13):
+q -> tip rotation ->
 quaternion or roll-pitch-yaw -> q to 1e-9, at random q and near the straight arm."""
 
 from __future__ import annotations

@@ -16,8 +16,9 @@ import pytest
 from conftest import QUICK_EPOCHS
 from nbclient import NotebookClient
 
+from softpinn.bridge.app import reproduce
 from softpinn.bridge.cli import main
-from softpinn.bridge.tasks import TASKS, ReproduceConfig, make_plan, reproduce, variant_model
+from softpinn.bridge.tasks import TASKS, ReproduceConfig, make_plan, variant_model
 from softpinn.symbolic.spec._spec import load_spec
 
 pytestmark = pytest.mark.timeout(900)
@@ -271,69 +272,69 @@ def test_plans_follow_the_paper():
     assert full["task5"].horizon == 10.0
     assert [v.name for v in full["task5"].variants] == [
         "fixed_0.0002s", "50Hz", "100Hz", "1000Hz"]
-    assert full["task4"].models["lagrangian"]["mass"] == (32, 3)  # Table III: 30*3, widened
+    assert full["task4"].models["lagrangian"].mass == (32, 3)  # Table III: 30*3, widened
     # every model of a task steps alike; task2's 0.08 s step needs RK4 sub-steps, the
     # actuated tasks' inputs are interpolated
     for t, (sub, hold) in {"task1": (1, "constant"), "task2": (2, "constant"),
                            "task3": (1, "linear"), "task5": (1, "linear")}.items():
-        assert {(m["substeps"], m["input_hold"]) for m in full[t].models.values()} == {(sub, hold)}
+        assert {(m.substeps, m.input_hold) for m in full[t].models.values()} == {(sub, hold)}
     # task5's 50 and 100 Hz steps exceed RK4's stable step for its fast mode: own sub-steps
     t5 = full["task5"]
     assert {v.name: v.substeps for v in t5.variants} == {
         "fixed_0.0002s": None, "50Hz": 3, "100Hz": 2, "1000Hz": None}
-    assert [variant_model(t5, v, "lagrangian")["substeps"] for v in t5.variants] == [
+    assert [variant_model(t5, v, "lagrangian").substeps for v in t5.variants] == [
         1, 3, 2, 1]
-    assert t5.models["lagrangian"]["substeps"] == 1
+    assert t5.models["lagrangian"].substeps == 1
     # its black box steps each 10 ms pair in one (its own max_step, as the paper steps pairs)
-    assert [variant_model(t5, v, "blackbox")["substeps"] for v in t5.variants
+    assert [variant_model(t5, v, "blackbox").substeps for v in t5.variants
             if "blackbox" in v.models] == [1, 1]
     # as many optimizer steps on the 50 Hz data's 23,992 pairs as on 45,000 elsewhere
     fifty = next(v for v in t5.variants if v.name == "50Hz")
     files = {"physics": {"samples": 23992}}
-    assert variant_model(t5, fifty, "lagrangian", files)["epochs"] == 376
-    assert variant_model(t5, fifty, "lagrangian", {"physics": {"samples": 48000}})["epochs"] == 200
-    assert "equal_steps" not in variant_model(t5, fifty, "lagrangian", files)
-    assert variant_model(t5, fifty, "blackbox", files)["epochs"] == 40
+    assert variant_model(t5, fifty, "lagrangian", files).epochs == 376
+    assert variant_model(t5, fifty, "lagrangian", {"physics": {"samples": 48000}}).epochs == 200
+    assert "equal_steps" not in variant_model(t5, fifty, "lagrangian", files).to_dict()
+    assert variant_model(t5, fifty, "blackbox", files).epochs == 40
     fixed = make_plan(load_spec("task5"), ReproduceConfig("task5", epochs=7))
-    assert variant_model(fixed, fifty, "lagrangian", files)["epochs"] == 7
-    assert t5.models["lagrangian"]["lr"] == 1e-2 and t5.models["blackbox"]["lr"] == 2e-3
+    assert variant_model(fixed, fifty, "lagrangian", files).epochs == 7
+    assert t5.models["lagrangian"].lr == 1e-2 and t5.models["blackbox"].lr == 2e-3
     # task5's Lagrangian networks learn from eq. 10 with q̈ from differences of the velocities
-    assert (t5.models["lagrangian"]["loss"], t5.models["lagrangian"]["accel_labels"]) == (
+    assert (t5.models["lagrangian"].loss, t5.models["lagrangian"].accel_labels) == (
         "accel", "differences")
-    assert {m.get("loss", "pair") for t in TASKS for k, m in full[t].models.items()
+    assert {m.trained_with("loss") for t in TASKS for k, m in full[t].models.items()
             if (t, k) != ("task5", "lagrangian")} == {"pair"}
     # task3's Hamiltonian network weighs q and p alike (λ = 0.1); every other model λ = 1
-    assert {(t, k): m["loss_weight"] for t in TASKS for k, m in full[t].models.items()
-            if "loss_weight" in m} == {("task3", "hamiltonian"): 0.1}
+    assert {(t, k): m.loss_weight for t in TASKS for k, m in full[t].models.items()
+            if m.loss_weight is not None} == {("task3", "hamiltonian"): 0.1}
     # the L-BFGS finishes of the full plans; quick plans and --lbfgs-steps 0 have none
-    assert {(t, k): m["lbfgs"] for t in TASKS for k, m in full[t].models.items()
-            if m["lbfgs"]} == {("task2", "lagrangian"): 1000, ("task3", "hamiltonian"): 200,
+    assert {(t, k): m.lbfgs for t in TASKS for k, m in full[t].models.items()
+            if m.lbfgs} == {("task2", "lagrangian"): 1000, ("task3", "hamiltonian"): 200,
                                ("task4", "hamiltonian"): 1000, ("task4", "lagrangian"): 2000}
     assert make_plan(load_spec("task3"), ReproduceConfig("task3", quick=True)).models[
-        "hamiltonian"]["lbfgs"] == 0
+        "hamiltonian"].lbfgs == 0
     assert make_plan(load_spec("task3"), ReproduceConfig("task3", lbfgs_steps=0)).models[
-        "hamiltonian"]["lbfgs"] == 0
-    assert full["task4"].models["lagrangian"]["damping"] == (5, 3)
-    assert full["task2"].models["lagrangian"]["mass"] == (32, 4)
+        "hamiltonian"].lbfgs == 0
+    assert full["task4"].models["lagrangian"].damping == (5, 3)
+    assert full["task2"].models["lagrangian"].mass == (32, 4)
     assert full["task4"].physics_samples == 8000
     assert full["task1"].other_dt == 0.1 and full["task2"].other_dt == 0.15
     quick = make_plan(load_spec("task2"), ReproduceConfig("task2", quick=True, epochs=7))
-    assert quick.models["lagrangian"]["epochs"] == 7 and quick.data["duration"] < 10
+    assert quick.models["lagrangian"].epochs == 7 and quick.data["duration"] < 10
     # early stopping where the recipe asks for it (task5's overfitting fixed-step runs), in
     # full runs only; the stage hands it to the training (test_recipe: a TrainConfig name)
-    assert {(t, k): m["patience"] for t in TASKS for k, m in full[t].models.items()
-            if "patience" in m} == {("task5", "lagrangian"): 30, ("task5", "blackbox"): 10}
-    assert "patience" not in make_plan(load_spec("task5"), ReproduceConfig(
-        "task5", quick=True)).models["blackbox"]
-    assert variant_model(t5, t5.variants[0], "blackbox")["patience"] == 10
-    assert {(t, k): m["overfit"] for t in TASKS for k, m in full[t].models.items()
-            if "overfit" in m} == {("task5", "lagrangian"): 2.0, ("task5", "blackbox"): 2.0}
+    assert {(t, k): m.patience for t in TASKS for k, m in full[t].models.items()
+            if m.patience is not None} == {("task5", "lagrangian"): 30, ("task5", "blackbox"): 10}
+    assert make_plan(load_spec("task5"), ReproduceConfig(
+        "task5", quick=True)).models["blackbox"].patience is None
+    assert variant_model(t5, t5.variants[0], "blackbox").patience == 10
+    assert {(t, k): m.overfit for t in TASKS for k, m in full[t].models.items()
+            if m.overfit is not None} == {("task5", "lagrangian"): 2.0, ("task5", "blackbox"): 2.0}
     # the test loss on a subset of task5's large held-out sets, in full runs only
-    assert {(t, k): m["test_samples"] for t in TASKS for k, m in full[t].models.items()
-            if "test_samples" in m} == {("task5", "lagrangian"): 45000,
+    assert {(t, k): m.test_samples for t in TASKS for k, m in full[t].models.items()
+            if m.test_samples is not None} == {("task5", "lagrangian"): 45000,
                                         ("task5", "blackbox"): 45000}
-    assert "test_samples" not in make_plan(load_spec("task5"), ReproduceConfig(
-        "task5", quick=True)).models["lagrangian"]
+    assert make_plan(load_spec("task5"), ReproduceConfig(
+        "task5", quick=True)).models["lagrangian"].test_samples is None
 
 
 def _err(capsys):
@@ -357,19 +358,22 @@ def test_reproduce_unknown_task_is_one_line_error(tmp_path, capsys):
 def test_jobs_progress_shows_the_models_and_keeps_log_lines(capsys):
     """reproduce --jobs: one bar over the models, where each running one is, and the workers'
     log lines printed whole above it."""
-    from softpinn.bridge.cli.bridge import _EpochBar
+    from softpinn.bridge.cli.bars import EpochBar
+    from softpinn.progress import Progress, TrainProgress
 
-    bar = _EpochBar()
-    bar({"phase": "models", "models": {"50Hz/lagrangian": 10, "100Hz/blackbox": 4}})
-    event = {"phase": "adamw", "epoch": 3, "epochs": 10, "label": "0", "train_loss": [1.0],
-             "test_loss": None}
-    bar({**event, "model": "50Hz/lagrangian"})
+    def model_done(key, done):
+        return Progress(done=done, total=2, unit="model", label=key, phase="done")
+
+    bar = EpochBar()
+    bar(Progress(done=0, total=2, unit="model", phase="start"))
+    bar(TrainProgress(done=3, total=10, unit="epoch", label="0", phase="adamw", epoch=3,
+                      epochs=10, train_loss=(1.0,), model="50Hz/lagrangian"))
     bar.write("[train/100Hz/blackbox] ...")
-    bar({"phase": "model-done", "model": "100Hz/blackbox"})
+    bar(model_done("100Hz/blackbox", 1))
     shown = bar.models.bar.format_dict
     assert (shown["n"], shown["total"]) == (1, 2)
     assert "50Hz/lagrangian 3/10 epochs" in shown["postfix"]
-    bar({"phase": "model-done", "model": "50Hz/lagrangian"})
+    bar(model_done("50Hz/lagrangian", 2))
     bar.write("50Hz/lagrangian: test 1e-3")
     bar.close()
     err = capsys.readouterr().err

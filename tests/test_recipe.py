@@ -9,8 +9,7 @@ import math
 import pytest
 
 from softpinn.bridge.tasks import ReproduceConfig, make_plan, variant_model
-from softpinn.learn._models import ModelConfig
-from softpinn.learn._train import TrainConfig
+from softpinn.learn import ModelConfig, TrainConfig
 from softpinn.symbolic import SpecError, load_spec
 from softpinn.symbolic.spec._recipe import BUDGET_KEYS, LOSS_KEYS, MODEL_KEYS, Recipe
 from softpinn.symbolic.spec._spec import preset_path
@@ -106,6 +105,27 @@ def test_recipe_training_keys_are_train_config_fields():
     assert set(MODEL_KEYS) <= fields | model_fields
 
 
+def test_a_model_budget_is_a_partial_train_config():
+    """A network's budget in the plan sets only what the recipe or the run sets: its optional
+    settings are TrainConfig's or ModelConfig's names (or the pipeline's own), one left out is
+    not written to plan.json and trains with TrainConfig's own default."""
+    from softpinn.bridge.tasks.budget import OPTIONAL
+
+    names = ({f.name for f in dataclasses.fields(TrainConfig)}
+             | {f.name for f in dataclasses.fields(ModelConfig)})
+    assert OPTIONAL - {"max_step", "equal_steps"} <= names
+    plan = make_plan(load_spec("task1"), ReproduceConfig("task1", quick=True))
+    m = plan.models["lagrangian"]
+    assert m.loss is None and m.train_settings() == {}
+    assert not {"loss", "momenta", "patience"} & set(plan.to_dict()["models"]["lagrangian"])
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    assert (m.trained_with("loss"), m.trained_with("momenta")) == (
+        defaults["loss"], defaults["momenta"])
+    h = make_plan(load_spec("task3"), ReproduceConfig("task3")).models["hamiltonian"]
+    assert h.train_settings() == {"loss_weight": 0.1}  # the recipe's λ, and nothing else
+    assert plan.to_dict()["models"]["lagrangian"]["paper_epochs"] == 6000  # always written
+
+
 def test_a_user_recipe_drives_the_plan(tmp_path):
     path = _spec_with(tmp_path, """[training]
 physics = ["hamiltonian"]
@@ -128,20 +148,18 @@ duration = 3.0
     full = make_plan(spec, ReproduceConfig("task1"))
     assert full.batch_size == 32 and full.horizon == 1.5
     h = full.models["hamiltonian"]
-    assert (h["epochs"], h["lbfgs"], h["mass"], h["substeps"], h["loss_weight"]) == (
-        77, 5, (40, 2), 3, 0.5)
-    assert full.models["blackbox"]["epochs"] == 11
+    assert (h.epochs, h.lbfgs, h.mass, h.substeps, h.loss_weight) == (77, 5, (40, 2), 3, 0.5)
+    assert full.models["blackbox"].epochs == 11
     assert [v.models for v in full.variants] == [("hamiltonian", "blackbox")]
     quick = make_plan(spec, ReproduceConfig("task1", quick=True))
-    assert quick.models["hamiltonian"]["epochs"] == 9 and quick.data["duration"] == 3.0
-    assert quick.models["hamiltonian"]["loss_weight"] == 0.5  # the loss holds in quick runs
+    assert quick.models["hamiltonian"].epochs == 9 and quick.data["duration"] == 3.0
+    assert quick.models["hamiltonian"].loss_weight == 0.5  # the loss holds in quick runs
 
 
 def test_a_recipe_fixes_a_known_input_and_the_damping_form(tmp_path, monkeypatch):
     """[training.<network>] known_input / damping_form / momenta / accel_space reach the trained
     model: the stage's TrainConfig carries this spec's exact A(q), the damping's form, the
     momenta and eq. 10's space, in full and quick runs alike; Table III's model column says so."""
-    import importlib
     from types import SimpleNamespace
 
     import numpy as np
@@ -167,11 +185,11 @@ test_with = "pair"
     for quick in (False, True):
         plan = make_plan(spec, ReproduceConfig("task4", quick=quick))
         lag, ham = plan.models["lagrangian"], plan.models["hamiltonian"]
-        assert lag["known_input"] and lag["mass_init"] == "data"  # M carries the scale
-        assert (ham["known_input"], ham["damping_form"], ham["momenta"]) == (
+        assert lag.known_input and lag.mass_init == "data"  # M carries the scale
+        assert (ham.known_input, ham.damping_form, ham.momenta) == (
             True, "constant", "velocity")
-        assert "mass_init" not in ham  # from velocities: no momenta to take a scale from
-        assert "known_input" not in plan.models["blackbox"]
+        assert ham.mass_init is None  # from velocities: no momenta to take a scale from
+        assert "known_input" not in plan.models["blackbox"].to_dict()
     assert _model_size("hamiltonian", ham) == "(16*2)*2 + D const + A known, from q̇"
     assert _model_size("lagrangian", lag) == "(16*2)*2 + 8*2 + A known"
 
@@ -182,12 +200,12 @@ test_with = "pair"
         seen["tc"] = tc
         raise RuntimeError("stop")
 
-    # the module (softpinn.learn's attribute of that name is the function)
-    monkeypatch.setattr(importlib.import_module("softpinn.learn._train"), "train", fake_train)
+    # where the stage finds them
+    monkeypatch.setattr(stages, "train", fake_train)
     rng = np.random.default_rng(0)
     fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
                            traj=np.repeat([0, 1], 10))
-    monkeypatch.setattr("softpinn.learn._data.load_dataset", lambda path: fake)
+    monkeypatch.setattr(stages, "load_dataset", lambda path: fake)
     files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
     text = spec_known_input(spec)[0]
     for kind in ("hamiltonian", "lagrangian"):
@@ -207,7 +225,6 @@ def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
     """The stage's TrainConfig carries a Hamiltonian network's momenta decided for its data, as
     train() stores them in config.json, so an interrupted run compares equal and is resumed
     (with "auto" beside the stored "data" it was trained again from scratch)."""
-    import importlib
     import json
     from types import SimpleNamespace
 
@@ -223,11 +240,11 @@ def test_an_interrupted_hamiltonian_run_is_resumed(tmp_path, monkeypatch):
         seen["tc"], seen["resume"] = tc, kw.get("resume")
         raise RuntimeError("stop")
 
-    monkeypatch.setattr(importlib.import_module("softpinn.learn._train"), "train", fake_train)
+    monkeypatch.setattr(stages, "train", fake_train)
     rng = np.random.default_rng(0)
     fake = SimpleNamespace(p=rng.normal(size=(20, spec.n)), qd=rng.normal(size=(20, spec.n)),
                            traj=np.repeat([0, 1], 10), meta={}, path="x.npz")  # simulated p
-    monkeypatch.setattr("softpinn.learn._data.load_dataset", lambda path: fake)
+    monkeypatch.setattr(stages, "load_dataset", lambda path: fake)
     files = {"physics": {"path": "x.npz", "train": [0], "test": [1], "samples": 10}}
 
     def stage():
@@ -258,12 +275,12 @@ def test_a_network_steps_by_its_own_max_step(tmp_path):
     path = tmp_path / "arm.toml"
     path.write_text(head + training)
     plan = make_plan(load_spec(path), ReproduceConfig("task5"))
-    steps = {v.name: {k: variant_model(plan, v, k)["substeps"] for k in v.models}
+    steps = {v.name: {k: variant_model(plan, v, k).substeps for k in v.models}
              for v in plan.variants}
     assert steps == {"fixed_0.0002s": {"lagrangian": 1, "blackbox": 1},
                      "50Hz": {"lagrangian": 3}, "100Hz": {"lagrangian": 2, "blackbox": 1},
                      "1000Hz": {"lagrangian": 1}}
-    assert "max_step" not in variant_model(plan, plan.variants[2], "blackbox")
+    assert variant_model(plan, plan.variants[2], "blackbox").max_step is None
     sentence = _integration_sentence(plan)
     assert "the 100Hz data with 2" in sentence
     assert "The black box network steps by its own longest step, 0.012 s: 1 on the " \
@@ -272,10 +289,10 @@ def test_a_network_steps_by_its_own_max_step(tmp_path):
     # on the fixed-step data too (their 0.2 ms samples over 0.1 ms: 2)
     path.write_text(head + training.replace("max_step = 0.012", "max_step = 0.004"))
     plan = make_plan(load_spec(path), ReproduceConfig("task5"))
-    assert variant_model(plan, plan.variants[2], "blackbox")["substeps"] == 3
+    assert variant_model(plan, plan.variants[2], "blackbox").substeps == 3
     path.write_text(head + training.replace("max_step = 0.012", "max_step = 0.0001"))
     plan = make_plan(load_spec(path), ReproduceConfig("task5"))
-    assert variant_model(plan, plan.variants[0], "blackbox")["substeps"] == 2
+    assert variant_model(plan, plan.variants[0], "blackbox").substeps == 2
 
 
 def test_max_step_on_a_single_data_set(tmp_path):
@@ -290,7 +307,7 @@ def test_max_step_on_a_single_data_set(tmp_path):
     plan = make_plan(load_spec(path), ReproduceConfig("task4"))
     (main,) = plan.variants
     assert main.substeps == 3  # ceil(5 / 2)
-    assert {k: variant_model(plan, main, k)["substeps"] for k in main.models} == {
+    assert {k: variant_model(plan, main, k).substeps for k in main.models} == {
         "lagrangian": 3, "hamiltonian": 3, "blackbox": 5}
 
 

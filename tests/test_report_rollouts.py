@@ -92,12 +92,37 @@ def test_error_against_horizon_with_diverged_trajectories(tmp_path):
     assert path.is_file() and path.stat().st_size > 10_000
 
 
-def test_rollout_figure_draws_the_inputs(tmp_path):
+def test_rollout_figure_draws_the_inputs(tmp_path, monkeypatch):
+    """Given u (T, m) the figure has one panel more than without: the inputs, one line per
+    input with the values of u against t, labelled u1 ... um."""
+    from softpinn.bridge.figures import rollouts
+
+    drawn = []  # per figure: (y-label, legend labels, lines as (x, y)) of every axes
+    original = rollouts.save_for_print
+
+    def spy(fig, path, **kw):
+        drawn.append([(ax.get_ylabel(), [line.get_label() for line in ax.get_lines()],
+                       [(np.asarray(line.get_xdata()), np.asarray(line.get_ydata()))
+                        for line in ax.get_lines()]) for ax in fig.axes])
+        return original(fig, path, **kw)
+
+    monkeypatch.setattr(rollouts, "save_for_print", spy)
     t, q = _truth(n=2)
     u = np.stack([np.cos(t), np.sin(t)], axis=1)
-    path = rollout_figure(t, q, {"lagrangian": q}, names=["theta1", "dL1"], units=["rad", "m"],
-                          title="u", path=tmp_path / "u.png", u=u)
+    kw = dict(names=["theta1", "dL1"], units=["rad", "m"], title="u")
+    path = rollout_figure(t, q, {"lagrangian": q}, path=tmp_path / "u.png", u=u, **kw)
     assert path.is_file()
+    rollout_figure(t, q, {"lagrangian": q}, path=tmp_path / "no-u.png", **kw)
+    with_u, without_u = drawn
+
+    def is_inputs(lines):
+        return len(lines) == u.shape[1] and all(
+            np.array_equal(x, t) and np.array_equal(y, u[:, j]) for j, (x, y) in enumerate(lines))
+
+    panels = [(ylabel, labels) for ylabel, labels, lines in with_u if is_inputs(lines)]
+    assert panels == [("inputs u", ["u1", "u2"])]
+    assert len(with_u) == len(without_u) + 1
+    assert not any(is_inputs(lines) for _, _, lines in without_u)
 
 
 def test_rollout_figure_shades_every_test_trajectory_behind_the_one_drawn(tmp_path):

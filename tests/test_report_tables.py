@@ -287,7 +287,7 @@ def test_rollouts_that_ran_away_are_counted_beside_inf():
     import math
 
     from softpinn.bridge.figures.task import _ran_away_text
-    from softpinn.bridge.tasks.stages import error_stats
+    from softpinn.bridge.tasks.measure_stages import error_stats
 
     s = error_stats([np.array([0.1, 0.3, math.inf, 0.2])])
     assert s["mean"] == math.inf and s["std"] == math.inf

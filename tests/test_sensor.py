@@ -1,4 +1,5 @@
-"""The simulated IMU of a spec's [sensor] table (symbolic/spec/_sensor.py): the table is validated when
+"""The simulated IMU of a spec's [sensor] table (symbolic/spec/_sensor.py): the table is
+validated when
 the spec loads, the recordings sample at the sensor's rate, their noise and bias have the stated
 statistics, a seed reproduces them, and ``softpinn import`` reads them back."""
 

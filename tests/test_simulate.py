@@ -8,14 +8,14 @@ import pytest
 
 from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.simulation._samples import batched
 from softpinn.symbolic.simulation._signals import Sinusoid, Step, Zero
-from softpinn.symbolic.simulation._simulate import (
+from softpinn.symbolic.simulation._sim_config import (
     SimulationConfig,
     SimulationError,
     SingularityError,
-    batched,
-    simulate,
 )
+from softpinn.symbolic.simulation._simulate import simulate
 from softpinn.symbolic.spec._spec import spec_from_dict
 
 

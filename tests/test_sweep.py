@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import json
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -15,11 +16,18 @@ import pytest
 from datagen import make_dataset, tiny_model_config
 
 from softpinn.bridge.cli import main
-from softpinn.bridge.sweep import RAY_MISSING, Random, make_trials, parse_space, sweep
+from softpinn.bridge.sweep import (
+    RAY_MISSING,
+    Random,
+    SweepConfig,
+    make_trials,
+    parse_space,
+    sweep,
+)
+from softpinn.bridge.sweep.rows import trial_row
 from softpinn.errors import UserError
-from softpinn.learn import load_run
-from softpinn.learn._config import TrainConfig
-from softpinn.symbolic.simulation._farm import ray_init
+from softpinn.learn import Stop, StopReason, TrainConfig, load_run
+from softpinn.symbolic import ray_init
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -139,6 +147,80 @@ def test_out_holding_other_files_is_refused(capsys, data, tmp_path):
     assert sorted(p.name for p in (tmp_path / "mine").iterdir()) == ["notes.txt"]
 
 
+def test_sweep_config_refuses_bad_settings():
+    for kw, expected in ((dict(scheduler="pbt"), "scheduler: expected one of asha, none"),
+                         (dict(metric="loss"), "metric: expected one of best_test_loss"),
+                         (dict(cpus_per_trial=0), "cpus_per_trial: expected a number > 0"),
+                         (dict(gpus_per_trial=-1), "gpus_per_trial: expected a number >= 0"),
+                         (dict(max_concurrent=0), "max_concurrent: expected an integer >= 1"),
+                         (dict(reduction_factor=1), "reduction_factor: expected a number > 1"),
+                         (dict(address="auto", num_cpus=2), "num_cpus: sizes a local Ray")):
+        with pytest.raises(UserError, match=re.escape(expected)):
+            SweepConfig(**kw)
+    with pytest.raises(UserError, match="config: expected a SweepConfig"):
+        sweep("data.npz", _base(), {"lr": [1e-3]}, "out", {"scheduler": "none"})
+
+
+# ----------------------------------------------------------------------- a trial's status
+
+
+class _Result:
+    """What a trial's row reads of a ``ray.tune.Result``."""
+
+    def __init__(self, **metrics):
+        self.metrics, self.error = metrics, None
+
+
+def _row(tmp_path, metrics: dict, scheduler="asha", **last):
+    trial = make_trials(_base(), {})[0]
+    tdir = tmp_path / "trials" / trial.name
+    tdir.mkdir(parents=True, exist_ok=True)
+    (tdir / "metrics.json").write_text(json.dumps({"best_test_loss": 0.5, "epochs_run": 3,
+                                                   **metrics}))
+    (tdir / "model.eqx").write_bytes(b"")
+    return trial_row(trial, _Result(**last), True, tmp_path, scheduler)
+
+
+@pytest.mark.parametrize(("reason", "status", "early"), [
+    ("completed", "completed", False),
+    ("patience", "early stop (patience)", True),
+    ("overfit", "early stop (overfit)", True),
+    ("target", "reached the target loss", False),
+    ("diverged", "diverged", False),
+    ("interrupted", "stopped by ASHA at epoch 3", True),
+    ("running", "stopped by ASHA at epoch 3", True),
+])
+def test_a_trials_status_is_its_stop_reason_not_the_wording(tmp_path, reason, status, early):
+    """The row reads the run's stop_reason: a sentence worded otherwise changes nothing."""
+    row = _row(tmp_path, {"stop_reason": reason, "stopped": "worded some other way"})
+    assert (row["status"], row["stopped_early"]) == (status, early)
+
+
+@pytest.mark.parametrize(("sentence", "reason"), [
+    ("completed 50 epochs", StopReason.COMPLETED),
+    ("early stop at epoch 7 (patience 3)", StopReason.PATIENCE),
+    ("early stop at epoch 9 (overfit: test loss above 2x its best, 0.1 at epoch 4, for 3 "
+     "evaluations)", StopReason.OVERFIT),
+    ("reached test loss 0.001 <= 0.002 at epoch 5 (lbfgs)", StopReason.TARGET),
+    ("diverged at epoch 4 (adamw)", StopReason.DIVERGED),
+    ("interrupted at epoch 3 (--resume continues)", StopReason.INTERRUPTED),
+    ("running", StopReason.RUNNING),
+    ("something else", StopReason.UNKNOWN),
+])
+def test_old_run_folders_without_a_stop_reason_still_read(tmp_path, sentence, reason):
+    """A run folder written before stop_reason: the reason its sentence states (the one
+    fallback), and the sweep's status from it as before."""
+    assert Stop.read({"stopped": sentence}) == Stop(reason, sentence)
+    assert StopReason.parse(None, sentence) is reason
+    row = _row(tmp_path, {"stopped": sentence}, scheduler="none")
+    expected = {StopReason.PATIENCE: "early stop (patience)",
+                StopReason.OVERFIT: "early stop (overfit)",
+                StopReason.TARGET: "reached the target loss",
+                StopReason.DIVERGED: "diverged", StopReason.INTERRUPTED: "interrupted",
+                StopReason.RUNNING: "interrupted"}.get(reason, "completed")
+    assert row["status"] == expected
+
+
 # ----------------------------------------------------------------------- a sweep on Ray
 
 
@@ -206,7 +288,8 @@ def test_four_trial_sweep_with_asha(local_ray, capsys, data, tmp_path):
 def test_a_failing_trial_is_a_row(local_ray, data, tmp_path):
     """A trial whose settings the run refuses (more devices than there are) is a row with the
     one-line error, not a traceback; with no trial left there is no best link."""
-    res = sweep(data, _base(devices=3), {"lr": [1e-2]}, tmp_path / "s", scheduler="none")
+    res = sweep(data, _base(devices=3), {"lr": [1e-2]}, tmp_path / "s",
+                SweepConfig(scheduler="none"))
     (row,) = res.rows
     assert row["status"].startswith("error: devices: 3 asked for"), row
     assert row["path"] is None and res.best is None and res.best_dir is None

@@ -142,8 +142,8 @@ class _StopAt:
     def __init__(self, epoch):
         self.epoch = epoch
 
-    def __call__(self, info):
-        if info["epoch"] == self.epoch:
+    def __call__(self, event):
+        if event.epoch == self.epoch:
             raise KeyboardInterrupt
 
 
@@ -178,8 +178,8 @@ def test_interrupt_then_resume_equals_uninterrupted(msd, tmp_path):
 def test_ctrl_c_finishes_the_epoch_then_saves(msd, tmp_path, ctrl_c_raises):
     cfg = blackbox_train_config()
 
-    def sigint_at_3(info):
-        if info["epoch"] == 3:
+    def sigint_at_3(event):
+        if event.epoch == 3:
             os.kill(os.getpid(), signal.SIGINT)  # like Ctrl-C while epoch 3 is reported
 
     with pytest.raises(KeyboardInterrupt):
@@ -328,10 +328,12 @@ def test_lbfgs_finish_accel_and_rollout_losses(msd, tmp_path):
     infos = []
     res = train(msd, cfg, tmp_path / "lb", progress=infos.append)
     # the progress callback counts the L-BFGS iterations, for their own bar
-    lb_infos = [i for i in infos if i["phase"] == "lbfgs"]
-    assert [i["lbfgs_done"] for i in lb_infos] == [10, 20]
-    assert all(i["lbfgs_steps"] == 20 for i in infos)
-    assert all(i["lbfgs_done"] is None for i in infos if i["phase"] == "adamw")
+    lb_infos = [i for i in infos if i.phase == "lbfgs"]
+    assert [i.done for i in lb_infos] == [10, 20] and {i.unit for i in lb_infos} == {"iteration"}
+    assert all(i.total == 20 for i in lb_infos)
+    adam_infos = [i for i in infos if i.phase == "adamw"]
+    assert [i.done for i in adam_infos] == [i.epoch for i in adam_infos]
+    assert all(i.total == cfg.epochs and i.unit == "epoch" for i in adam_infos)
     hist = res.members[0].history
     adam = [r for r in hist if r["phase"] == "adamw"]
     lb = [r for r in hist if r["phase"] == "lbfgs"]
@@ -360,7 +362,7 @@ def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
     # the same training, another test column, and the best model is the one that predicts best
     from softpinn.learn._data import make_pairs
     from softpinn.learn._losses import pair_loss
-    from softpinn.learn._programs import to_pairs
+    from softpinn.learn._objective import to_pairs
     from softpinn.learn._splits import split_trajectories
 
     kw = dict(loss="accel", lr=3e-2, input_hold="linear", checkpoint_every=4)

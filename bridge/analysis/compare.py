@@ -1,5 +1,5 @@
 """The matrix-equivalence analysis end to end: evaluate the true model (CasADi, via
-``symbolic.model._true_model.TrueModel``) and a learned model (JAX, ``model.matrices`` under ``jax.vmap``)
+``softpinn.symbolic.TrueModel``) and a learned model (JAX, ``model.matrices`` under ``jax.vmap``)
 at the same batch of q, run the fits of :mod:`bridge.transforms`, and compare the force terms
 along data samples (:mod:`.forces`) and what those show of the inertia (:mod:`.excitation`).
 
@@ -31,6 +31,7 @@ from softpinn.bridge.analysis.transforms import (
 )
 from softpinn.errors import UserError
 from softpinn.learn.plots import coordinate_unit
+from softpinn.progress import Progress, ProgressFn
 
 DEFAULT_TRANSFORMS = ("pointwise", "joint", "alpha", "constant", "smooth")
 
@@ -185,7 +186,7 @@ def analyze(
     *,
     transforms: Sequence[str] = DEFAULT_TRANSFORMS,
     options: Mapping[str, Mapping[str, Any]] | None = None,
-    progress: Callable[[str, int, int], None] | None = None,
+    progress: ProgressFn | None = None,
     samples: tuple | None = None,
 ) -> AnalysisResult:
     """Evaluate both models at ``q_points`` (N, n) and run each transform.
@@ -193,7 +194,8 @@ def analyze(
     ``options`` maps a transform name to its keyword options (see :mod:`bridge.transforms`),
     e.g. ``{"smooth": {"degree": 3, "ridge": 1e-8}}``. For a Hamiltonian model (config kind
     ``"hamiltonian"``) the direct comparison (no transform, P = I) is added first.
-    ``progress(stage, done, total)`` is called after each step (the CLI draws a bar).
+    ``progress(event)`` is told each stage as it finishes (a :class:`softpinn.progress.Progress`
+    of unit "stage", its name as ``label``).
 
     ``samples``: data samples ``(q, qd, u)`` or ``(q, qd, u, meta)`` (see
     :func:`bridge.forces.data_samples`); both models' force terms G, D q̇, A u and their sum are
@@ -224,16 +226,16 @@ def analyze(
     total = 2 + len(transforms)
     true = true_matrices(true_model, q)
     if progress:
-        progress("true model", 1, total)
+        progress(Progress(done=1, total=total, unit="stage", label="true model"))
     learned = learned_matrices(learned_model, q)
     if progress:
-        progress("learned model", 2, total)
+        progress(Progress(done=2, total=total, unit="stage", label="learned model"))
     check_q(q, true.N, true.n)
     results = {}
     for i, name in enumerate(transforms):
         results[name] = fit_transform(name, true, learned, q, **dict(options.get(name, {})))
         if progress:
-            progress(name, 3 + i, total)
+            progress(Progress(done=3 + i, total=total, unit="stage", label=name))
     forces = accelerations = excitation = None
     if samples is not None:
         forces, accelerations = _forces(true_model, learned_model, kind, results, samples)

@@ -20,7 +20,8 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from softpinn.errors import UserError
-from softpinn.learn import atomic_write_bytes, file_sha256
+from softpinn.files import NULL, jsonable, write_json
+from softpinn.learn import file_sha256
 
 MANIFEST = "manifest.json"
 FORMAT = "softpinn-manifest"
@@ -169,32 +170,17 @@ def written_files(out: str | Path) -> list[Path]:
 
 
 def _write(out: Path, manifest: dict) -> None:
-    """The manifest, written atomically (and readable as the user's files are)."""
-
-    text = json.dumps(manifest, indent=2, allow_nan=False) + "\n"
-    atomic_write_bytes(out / MANIFEST, text.encode("utf-8"))
+    """The manifest, written whole (:func:`softpinn.files.write_json`; readable as the user's
+    files are)."""
+    path = out / MANIFEST
+    try:
+        write_json(path, manifest)
+    except OSError as exc:
+        raise UserError(f"{path}: cannot write there ({exc.strerror or exc})") from None
 
 
 def to_jsonable(x):
     """``x`` as JSON without NaN or inf (results.json of the analyses, the challenge studies and
-    `control`): arrays and tuples to lists, numpy scalars to Python, non-finite floats to None,
-    enums to str, keys to str."""
-    import enum
-    import math
-    from collections.abc import Mapping
-
-    import numpy as np
-
-    if isinstance(x, Mapping):
-        return {str(k): to_jsonable(v) for k, v in x.items()}
-    if isinstance(x, np.ndarray):
-        return to_jsonable(x.tolist())
-    if isinstance(x, list | tuple):
-        return [to_jsonable(v) for v in x]
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    if isinstance(x, enum.Enum):
-        return str(x.value)
-    return x
+    `control`): arrays and tuples to lists, numpy scalars to Python, non-finite floats to None
+    (the rule of files, :data:`softpinn.files.NULL`), enums and paths to str, keys to str."""
+    return jsonable(x, nonfinite=NULL, str_keys=True)

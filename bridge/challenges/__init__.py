@@ -6,7 +6,7 @@ networks from velocity data (:mod:`.velocity`).
 Every study module has one entry point with the same contract::
 
     def run_study(out: Path, *, quick: bool, log: Callable[[str], None],
-                  progress: Callable[[dict], None] | None = None) -> dict
+                  progress: ProgressFn | None = None) -> dict
 
 ``out`` is a folder the study owns (created for it, possibly holding an earlier call's
 finished stages, which it may reuse); the study writes its runs and figures there and returns

@@ -35,6 +35,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -88,8 +89,6 @@ KIND_LABELS = {"lagrangian": "structured Lagrangian", "lagrangian-hessian": "Hes
 
 def _load() -> str:
     """The 1-minute load average (the machine is shared; every timing is reported with it)."""
-    import os
-
     try:
         return f"{os.getloadavg()[0]:.2f}"
     except OSError:
@@ -151,7 +150,7 @@ def _budgets(plan, quick: bool) -> dict[str, dict[str, Any]]:
     b = BUDGETS["quick" if quick else "full"]
     m = plan.models["lagrangian"]
     today = b["today"] if b["today"] != "recipe" else {
-        "epochs": int(m["epochs"]), "lr": float(m["lr"]), "lbfgs": int(m["lbfgs"])}
+        "epochs": int(m.epochs), "lr": float(m.lr), "lbfgs": int(m.lbfgs)}
     return {"today": dict(today), "warm": dict(b["warm"]), "fast": dict(b["fast"])}
 
 
@@ -165,12 +164,11 @@ def _train(spec, plan, files, folder: Path, progress, *, loss: str, budget: dict
            target: float | None = None, init: str | None = None) -> dict[str, Any]:
 
     f = files["physics"]
-    m = plan.models["lagrangian"]
     data = load_dataset(f["path"])
     model = _model_config(spec, plan, "lagrangian", data, f["train"])
     # eq. 10 is scored by the pair loss, with the recipe's input hold and substeps as the
     # pair runs (test_with "pair"): one level for every run
-    extra = {"input_hold": str(m["input_hold"]), "substeps": int(m["substeps"])}
+    extra = plan.models["lagrangian"].integration()
     if loss == "accel":
         extra.update(accel_labels=budget["labels"], test_with="pair")
     epochs = int(budget["epochs"])
@@ -233,7 +231,7 @@ def _time_to_loss(out: Path, quick: bool, log, progress) -> dict[str, Any]:
     curves = {"today": today["history"], "warm": warm["history"]}
     return {
         "variant": variant.name, "samples": plan.physics_samples, "batch": plan.batch_size,
-        "network": {k: list(plan.models["lagrangian"][k])
+        "network": {k: list(getattr(plan.models["lagrangian"], k))
                     for k in ("mass", "potential", "damping", "input")},
         "paper_level": paper, "level": level, "level_is_paper": level == paper,
         "today_s": t_today, "fast_s": t_fast,
@@ -265,7 +263,7 @@ def _curve(history, offset: float = 0.0) -> list[tuple[float, float, int]]:
 
 
 def _figure(steps: dict[str, Any], ttl: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib only where a figure is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt

@@ -71,15 +71,15 @@ def _plan(task: str, quick: bool):
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
     variant = next(v for v in plan.variants if v.name == VARIANT[task])
     variant = dataclasses.replace(variant, models=("lagrangian",))
-    m = dict(plan.models["lagrangian"])
+    m = plan.models["lagrangian"]
     changes: dict[str, Any] = {"variants": (variant,), "fixed_step": None}
     if quick:
-        m.update(QUICK[task])
+        m = dataclasses.replace(m, **QUICK[task])
     else:
         b = BUDGETS[task]
         changes["data"] = {**plan.data, **b["data"]}
         changes["physics_samples"] = b["samples"]
-        m.update(epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
+        m = dataclasses.replace(m, epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
     changes["models"] = {**plan.models, "lagrangian": m}
     return spec, dataclasses.replace(plan, **changes), variant
 
@@ -112,16 +112,16 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
     m = variant_model(plan, variant, "lagrangian", files)
     known_text, _, _ = spec_known_input(spec)
     data = load_dataset(files["physics"]["path"])
-    result: dict[str, Any] = {"variant": variant.name, "epochs": int(m["epochs"]),
-                              "lbfgs_steps": int(m["lbfgs"]),
+    result: dict[str, Any] = {"variant": variant.name, "epochs": int(m.epochs),
+                              "lbfgs_steps": int(m.lbfgs),
                               "samples": plan.physics_samples or files["physics"]["samples"],
-                              "loss": m.get("loss", "pair"), "models": {}}
-    settings = {"plan": plan.to_dict(), "model": m}
-    epochs_h = int(m["epochs"]) if quick else int(BUDGETS[task]["hamiltonian_epochs"])
-    m_h = {**m, "loss": "accel", "accel_labels": "differences", "momenta": "data",
-           "lr": HAMILTONIAN_LR, "epochs": epochs_h, "lbfgs": 0}
-    plan_h = dataclasses.replace(plan, models={**plan.models, "hamiltonian": {
-        **m_h, "mass_init": "data", "damping_form": "constant", "known_input": True}})
+                              "loss": m.trained_with("loss"), "models": {}}
+    settings = {"plan": plan.to_dict(), "model": m.to_dict()}
+    epochs_h = int(m.epochs) if quick else int(BUDGETS[task]["hamiltonian_epochs"])
+    m_h = dataclasses.replace(m, loss="accel", accel_labels="differences", momenta="data",
+                              lr=HAMILTONIAN_LR, epochs=epochs_h, lbfgs=0)
+    plan_h = dataclasses.replace(plan, models={**plan.models, "hamiltonian": dataclasses.replace(
+        m_h, mass_init="data", damping_form="constant", known_input=True)})
     result["hamiltonian"] = {"loss": "accel", "accel_labels": "differences",
                              "epochs": epochs_h, "lr": HAMILTONIAN_LR,
                              "damping_form": "constant"}
@@ -137,7 +137,7 @@ def _task(task: str, out: Path, *, quick: bool, log, progress) -> dict[str, Any]
         t0 = time.perf_counter()
         if name == "hamiltonian":
             trained = stages.run(
-                f"train-{name}", {"plan": plan_h.to_dict(), "model": m_h},
+                f"train-{name}", {"plan": plan_h.to_dict(), "model": m_h.to_dict()},
                 lambda f: stage_train(spec, plan_h, "hamiltonian", m_h, files, f, progress))
         else:
             extra = {"mass_init": changes["mass_init"]} if name == "known" else {}
@@ -173,7 +173,7 @@ def _fmt(x) -> str:
 
 
 def _figure(results: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib only where a figure is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt

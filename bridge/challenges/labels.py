@@ -1,8 +1,8 @@
 """Challenge 2b (Section VI-B): the ideal Lagrangian solution by additional labels.
 
 A Lagrangian network (eq. 6) recovers M, D, G, A only up to a transform P(q) (Tables I, VIII).
-The labels here are static equilibria (:mod:`softpinn.symbolic.simulation._equilibria`): q* at rest under a
-constant input u*, where eq. 4 gives G(q*) = A(q*) u* = f*. Two ways to use them
+The labels here are static equilibria (:mod:`softpinn.symbolic.simulation._equilibria`): q* at
+rest under a constant input u*, where eq. 4 gives G(q*) = A(q*) u* = f*. Two ways to use them
 (``TrainConfig``):
 
 * ``equilibrium_weight``: the balance G(q*) = A(q*) u* alone (no force is measured, only where
@@ -35,6 +35,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 
 from softpinn.bridge.analysis.compare import learned_matrices, true_matrices
@@ -44,8 +46,10 @@ from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.figures.figsave import figure_dpi
 from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 from softpinn.bridge.tasks.stages import Stages, _model_config, stage_data, variant_model
+from softpinn.learn import Equilibria as EquilibriumLabels  # the labels as training takes them
 from softpinn.learn import (
     TrainConfig,
+    equilibrium_forces,
     load_dataset,
     load_ensemble,
     mass_scale,
@@ -109,17 +113,17 @@ def _plan(task: str, quick: bool):
     plan = make_plan(spec, ReproduceConfig(task=task, quick=quick, analysis_points=40))
     variant = next(v for v in plan.variants if v.name == VARIANT[task])
     variant = dataclasses.replace(variant, models=("lagrangian",))
-    m = dict(plan.models["lagrangian"])
+    m = plan.models["lagrangian"]
     changes: dict[str, Any] = {"variants": (variant,), "fixed_step": None}
     if quick:
-        m.update(QUICK[task])
+        m = dataclasses.replace(m, **QUICK[task])
     else:
         b = BUDGETS[task]
         changes["data"] = {**plan.data, **b["data"]}
         changes["physics_samples"] = b["samples"]
         if "batch" in b:
             changes["batch_size"] = b["batch"]
-        m.update(epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
+        m = dataclasses.replace(m, epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
     changes["models"] = {**plan.models, "lagrangian": m}
     return spec, dataclasses.replace(plan, **changes), variant
 
@@ -148,15 +152,15 @@ def _train(spec, plan, m, path: str, files: dict, weights: dict, folder: Path,
     model = _model_config(spec, plan, "lagrangian", data, f["train"])
     if mass_init:
         model = dataclasses.replace(model, mass_init=mass_scale(data, "lagrangian", f["train"]))
+    # the recipe's loss (its other settings, e.g. early stopping, are not this study's)
+    loss = {k: v for k, v in m.train_settings().items()
+            if k in ("loss", "accel_labels", "loss_weight")}
     tc = TrainConfig(
         model=model,
-        epochs=int(m["epochs"]), batch_size=plan.batch_size, lr=float(m["lr"]), seed=0,
+        epochs=int(m.epochs), batch_size=plan.batch_size, lr=float(m.lr), seed=0,
         test_trajectories=tuple(f["test"]), samples=plan.physics_samples,
-        lbfgs_steps=int(m["lbfgs"]), substeps=int(m["substeps"]),
-        input_hold=str(m["input_hold"]), loss=str(m.get("loss", "pair")),
-        accel_labels=str(m.get("accel_labels", "recorded")),
-        loss_weight=float(m.get("loss_weight", 1.0)),
-        eval_every=max(1, int(m["epochs"]) // 50), checkpoint_every=max(1, int(m["epochs"])),
+        lbfgs_steps=int(m.lbfgs), **m.integration(), **loss,
+        eval_every=max(1, int(m.epochs) // 50), checkpoint_every=max(1, int(m.epochs)),
         **weights,
     )
     res = train(data, tc, folder / "run", progress=progress, force=True)
@@ -171,8 +175,7 @@ def _predict(plan, m, model, data, test) -> dict[str, Any]:
     trajs = trajectories(data, test, state="velocity")
     span = min(float(tr["t"][-1] - tr["t"][0]) for tr in trajs)
     horizon = min(plan.horizon, span)
-    rolls = rollouts(model, trajs, horizon=horizon, substeps=int(m["substeps"]),
-                     input_hold=str(m["input_hold"]))
+    rolls = rollouts(model, trajs, horizon=horizon, **m.integration())
     errs = np.asarray([r["error"] for r in rolls], float)
     with np.errstate(invalid="ignore", over="ignore"):
         err = float(np.mean(errs))
@@ -184,11 +187,6 @@ def _matrices(spec, model, data, train_ids, count: int, pool) -> dict[str, Any]:
     """Direct relative residuals (percent, P = I) of M, D, G, A over ``count`` samples of the
     training data; the best single scale α of M, D, G, A and its residual; and the learned
     balance |Ĝ - Â u*| / |f*| at the whole pool of equilibria (labelled or not)."""
-    import jax
-    import jax.numpy as jnp
-
-    from softpinn.learn import Equilibria, equilibrium_forces
-
     q, _, _, _ = data_samples(data, train_ids, count=count, seed=0)
     true, learned = true_matrices(TrueModel(spec), q), learned_matrices(model, q)
     direct = compare_direct(true, learned, blocks=("M_inv", "D", "A", "G"))
@@ -198,8 +196,8 @@ def _matrices(spec, model, data, train_ids, count: int, pool) -> dict[str, Any]:
     alpha = fit_alpha(true, learned, blocks=("M", "D", "G", "A"))
     out["alpha"] = float(alpha.alpha) if np.isfinite(alpha.alpha) else None
     out["alpha_residual"] = 100.0 * float(alpha.residual_total)
-    eq = Equilibria(jnp.asarray(pool.q), jnp.asarray(pool.u), jnp.asarray(pool.force),
-                    jnp.asarray(1.0))
+    eq = EquilibriumLabels(jnp.asarray(pool.q), jnp.asarray(pool.u), jnp.asarray(pool.force),
+                           jnp.asarray(1.0))
     G, Au = jax.jit(equilibrium_forces)(model, eq)
     fn = np.linalg.norm(pool.force, axis=1)
     out["balance_at_pool"] = 100.0 * float(np.median(
@@ -227,9 +225,9 @@ def _task(task: str, out: Path, *, quick: bool, log, progress,
     data = load_dataset(files["physics"]["path"])
     result: dict[str, Any] = {
         "task": task, "mass_init": mass_init, "variant": variant.name,
-        "epochs": int(m["epochs"]), "lbfgs_steps": int(m["lbfgs"]),
+        "epochs": int(m.epochs), "lbfgs_steps": int(m.lbfgs),
         "samples": plan.physics_samples or files["physics"]["samples"],
-        "loss": m.get("loss", "pair"), "counts": {k: list(v) for k, v in counts.items()},
+        "loss": m.trained_with("loss"), "counts": {k: list(v) for k, v in counts.items()},
         "equilibria": {"count": len(pool), "seconds": eq_seconds,
                        "max_residual": pool.info["max_residual"],
                        "input_low": pool.info["input_low"], "input_high": pool.info["input_high"],
@@ -237,7 +235,7 @@ def _task(task: str, out: Path, *, quick: bool, log, progress,
                        "data_q_min": data.q.min(axis=0).tolist(),
                        "data_q_max": data.q.max(axis=0).tolist()},
         "runs": {}}
-    settings = {"plan": plan.to_dict(), "model": m}
+    settings = {"plan": plan.to_dict(), "model": m.to_dict()}
     runs = [("none", 0, {})] + [(kind, k, w) for kind, w, _ in KINDS for k in counts[kind]]
     for kind, count, weights in runs:
         name = f"{kind}-{count}" if count else "none"
@@ -279,7 +277,7 @@ def _series(r: dict[str, Any], kind: str, key: str):
 
 
 def _figure(results: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib only where a figure is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt

@@ -1,5 +1,5 @@
 """``softpinn reproduce challenges``: the paper's three open challenges (Section VI-B) run as
-studies into one folder, with one report.
+studies into one folder, with one report (:mod:`bridge.report.challenges`).
 
     OUT/
       report.md           the verdict, a table of every target met or missed, then each study
@@ -17,10 +17,15 @@ import importlib
 import json
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from softpinn.bridge.base import outputs
+from softpinn.bridge.tasks.plan import ReproduceConfig
+from softpinn.files import write_json
 
 #: The studies, in the report's order: module of :mod:`bridge.challenges` and its challenge.
 STUDIES = (
@@ -29,6 +34,18 @@ STUDIES = (
     ("labels", "2b. The ideal Lagrangian solution: additional labels"),
     ("velocity", "3. Hamiltonian networks from velocity data"),
 )
+
+
+@dataclass(frozen=True)
+class ChallengesRun:
+    """The studies of :data:`STUDIES`, run (:func:`run_challenges`): the output folder, each
+    study's ``{"title", "markdown", "results", "seconds"}`` by name, and the wall time [s]."""
+
+    config: ReproduceConfig
+    out: Path
+    studies: dict[str, dict[str, Any]] = field(repr=False)
+    seconds: float
+    plan: None = None  # the studies have plans of their own
 
 
 def run_study(name: str, out: Path, *, quick: bool, log: Callable[[str], None],
@@ -46,20 +63,22 @@ def run_study(name: str, out: Path, *, quick: bool, log: Callable[[str], None],
             log(f"{name}: finished earlier, reused")
             return stored["study"]
     folder.mkdir(parents=True, exist_ok=True)
+    # the study modules are looked up by name (a test puts stand-ins in their place)
     module = importlib.import_module(f"{__package__}.{name}")
     t0 = time.perf_counter()
     study = module.run_study(folder, quick=quick, log=log, progress=progress)
     study.setdefault("seconds", time.perf_counter() - t0)
-    tmp = done.with_name(done.name + ".tmp")
-    tmp.write_text(json.dumps({"settings": settings, "study": study}, indent=1,
-                              allow_nan=False, default=_jsonable))
-    tmp.replace(done)
+    write_strict_json(done, {"settings": settings, "study": study})
     return study
 
 
-def _jsonable(x):
-    import numpy as np
+def write_strict_json(path: Path, obj: Any) -> None:
+    """``obj`` as strict JSON into ``path``, written whole, non-finite numbers as null
+    (:func:`softpinn.files.write_json`): ``study.json`` and the challenges' ``results.json``."""
+    write_json(path, obj, indent=1, end="", default=_jsonable)
 
+
+def _jsonable(x):
     if isinstance(x, np.generic):
         return x.item()
     if isinstance(x, np.ndarray):
@@ -69,11 +88,12 @@ def _jsonable(x):
     raise TypeError(f"not JSON-ready: {type(x).__name__}")
 
 
-def run_challenges(out_dir, *, quick: bool, log: Callable[[str], None] | None = None,
-                   progress=None, force: bool = False, machine: str = ""):
-    """Run every study of :data:`STUDIES` into ``out_dir`` and write the report; returns
-    ``(out, report, results, seconds)``."""
-    log = log or (lambda s: None)
+def run_challenges(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
+                   progress=None, force: bool = False) -> ChallengesRun:
+    """Run every study of :data:`STUDIES` into ``out_dir`` (``config.quick``: their quick
+    forms). The report (:mod:`bridge.report.challenges`) and ``results.json``
+    (:func:`results_document`) are the caller's (``softpinn.bridge.app``'s ``reproduce``)."""
+    quick = config.quick
     out = outputs.claim(out_dir, "reproduce", force=force)
     t0 = time.perf_counter()
     studies = {}
@@ -81,57 +101,13 @@ def run_challenges(out_dir, *, quick: bool, log: Callable[[str], None] | None = 
         log(f"{title}: running" + (" (quick)" if quick else ""))
         studies[name] = run_study(name, out, quick=quick, log=log, progress=progress)
         log(f"{title}: {studies[name].get('seconds', 0.0):.0f} s")
-    seconds = time.perf_counter() - t0
-    report = write_report(out, studies, quick=quick, seconds=seconds, machine=machine)
-    results = {"task": "challenges", "quick": quick, "seconds": seconds, "machine": machine,
-               "studies": {n: {k: v for k, v in s.items() if k != "markdown"}
-                           for n, s in studies.items()}}
-    path = out / "results.json"
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(results, indent=1, allow_nan=False, default=_jsonable))
-    tmp.replace(path)
-    outputs.record(out, outputs.written_files(out))
-    log(f"report: {report}")
-    return out, report, results, seconds
+    return ChallengesRun(config, out, studies, time.perf_counter() - t0)
 
 
-def _targets(studies: dict[str, dict]) -> list[str]:
-    """The table of targets: every study's ``results["targets"]`` entries
-    ``{"what", "target", "measured", "met"}``."""
-    rows = []
-    for name, title in STUDIES:
-        for t in (studies.get(name, {}).get("results") or {}).get("targets", []) or []:
-            met = t.get("met")
-            word = "met" if met is True else ("missed" if met is False else "–")
-            rows.append(f"| {title.split('.')[0]} | {t.get('what', '')} | {t.get('target', '')} "
-                        f"| {t.get('measured', '')} | {word} |")
-    if not rows:
-        return []
-    return ["| challenge | what | target | measured | |", "|---|---|---|---|---|", *rows, ""]
-
-
-def write_report(out: Path, studies: dict[str, dict], *, quick: bool, seconds: float,
-                 machine: str) -> Path:
-    """``report.md``: what was run, the targets, then each study's own section."""
-    lines = ["# The paper's open challenges (Section VI-B), solved and measured", ""]
-    if quick:
-        lines += ["**This is a quick run**: tiny data and short training, to check the studies "
-                  "in minutes; its numbers are not the studies' results (run without `--quick` "
-                  "for those), and its figures are screen-resolution drafts.", ""]
-    lines += [f"`softpinn reproduce challenges{' --quick' if quick else ''}`; wall time "
-              f"{seconds:.0f} s on {machine or 'this machine'} (per study: "
-              + ", ".join(f"{n} {s.get('seconds', 0.0):.0f} s" for n, s in studies.items())
-              + ").", ""]
-    lines += _targets(studies)
-    for name, title in STUDIES:
-        s = studies.get(name)
-        if s is None:
-            continue
-        body = [("#" + ln) if ln.startswith("#") else ln  # a study's headings go under ours
-                for ln in s.get("markdown", "").strip().splitlines()]
-        lines += [f"## {title}", "", *body, ""]
-    report = out / "report.md"
-    tmp = report.with_name(report.name + ".tmp")
-    tmp.write_text("\n".join(lines), "utf-8")
-    tmp.replace(report)
-    return report
+def results_document(run: ChallengesRun, *, seconds: float, machine: str) -> dict[str, Any]:
+    """What ``results.json`` holds: every study's results (not its report section), the
+    settings and the machine."""
+    return {"task": "challenges", "quick": run.config.quick, "seconds": seconds,
+            "machine": machine,
+            "studies": {n: {k: v for k, v in s.items() if k != "markdown"}
+                        for n, s in run.studies.items()}}

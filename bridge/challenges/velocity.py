@@ -63,6 +63,7 @@ from softpinn.bridge.challenges.velocity_settings import (
     WEIGHTED_QUICK,
 )
 from softpinn.bridge.exact.serialize import spec_known_input
+from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.bridge.tasks.plan import ReproduceConfig, make_plan
 from softpinn.bridge.tasks.stages import Stages, stage_data, variant_model
 from softpinn.learn import (
@@ -91,18 +92,17 @@ def _plan(task: str, quick: bool):
     names = (QUICK_VARIANTS if quick else VARIANTS)[task]
     variants = tuple(dataclasses.replace(v, models=("lagrangian", "hamiltonian"))
                      for v in plan.variants if v.name in names)
-    m = dict(plan.models["lagrangian"])
-    m.pop("mass_init", None)
+    m = dataclasses.replace(plan.models["lagrangian"], mass_init=None)
     changes: dict[str, Any] = {"variants": variants, "fixed_step": None}
     if quick:
-        m.update(epochs=QUICK[task]["epochs"])
+        m = dataclasses.replace(m, epochs=QUICK[task]["epochs"])
     else:
         b = BUDGETS[task]
         changes["data"] = {**plan.data, **b["data"]}
         changes["physics_samples"] = b["samples"]
-        m.update(epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
+        m = dataclasses.replace(m, epochs=b["epochs"], lbfgs=b["lbfgs"], equal_steps=False)
     # the same budget for both networks: the Lagrangian network's recipe (sizes, loss, lr)
-    changes["models"] = {"lagrangian": m, "hamiltonian": dict(m)}
+    changes["models"] = {"lagrangian": m, "hamiltonian": m}
     plan = dataclasses.replace(plan, **changes)
     if not quick:  # the prediction horizon within the shorter trajectories
         plan = dataclasses.replace(plan, horizon=min(plan.horizon, 0.8 * plan.data["duration"]),
@@ -110,36 +110,37 @@ def _plan(task: str, quick: bool):
     return spec, plan, variants
 
 
-def _train(spec, plan, kind: str, m: dict, files: dict, folder: Path, progress,
-           known: bool = False) -> dict:
-    """One network on the variant's physics data; a Hamiltonian one from its velocities. ``m``
-    may set ``damping_form``, ``accel_space`` and ``batch_size`` besides the recipe's keys."""
-
+def _train(spec, plan, kind: str, m: ModelBudget, files: dict, folder: Path, progress,
+           known: bool = False, batch_size: int | None = None,
+           weights_from: str | None = None) -> dict:
+    """One network on the variant's physics data; a Hamiltonian one from its velocities. Of the
+    budget ``m``'s settings, its sizes, budget, integration, ``damping_form`` and loss
+    (``loss``, ``accel_labels``, ``accel_space``, ``loss_weight``) count; ``batch_size``
+    overrides the plan's; ``weights_from``: the weighted second pass starts from that run,
+    with its weights."""
     f = files["physics"]
     data = load_dataset(f["path"])
-    mc = ModelConfig(kind=kind, n=spec.n, m=spec.m, mass=tuple(m["mass"]),
-                     potential=tuple(m["potential"]), damping=tuple(m["damping"]),
-                     input=tuple(m["input"]), dtype="float32" if plan.float32 else "float64",
-                     damping_form=str(m.get("damping_form", "network")))
+    form = {} if m.damping_form is None else {"damping_form": str(m.damping_form)}
+    mc = ModelConfig(kind=kind, n=spec.n, m=spec.m, mass=tuple(m.mass),
+                     potential=tuple(m.potential), damping=tuple(m.damping),
+                     input=tuple(m.input), dtype="float32" if plan.float32 else "float64",
+                     **form)
     if known:
-
         mc = dataclasses.replace(mc, input_form="known", known_input=spec_known_input(spec)[0])
     weights = None
-    if m.get("weights_from"):  # the weighted second pass: from that run, with its weights
-
-        weights = data_force_weights(load_run(m["weights_from"]).model, data, f["train"],
-                                     str(m["accel_labels"]))
+    if weights_from:
+        weights = data_force_weights(load_run(weights_from).model, data, f["train"],
+                                     str(m.accel_labels))
+    loss = {k: v for k, v in m.train_settings().items()
+            if k in ("loss", "accel_labels", "accel_space", "loss_weight")}
     tc = TrainConfig(
-        model=mc, epochs=int(m["epochs"]), batch_size=m.get("batch_size", plan.batch_size),
-        lr=float(m["lr"]),
+        model=mc, epochs=int(m.epochs),
+        batch_size=batch_size if batch_size is not None else plan.batch_size,
+        lr=float(m.lr),
         seed=0, test_trajectories=tuple(f["test"]), samples=plan.physics_samples,
-        lbfgs_steps=int(m["lbfgs"]), substeps=int(m["substeps"]),
-        input_hold=str(m["input_hold"]), loss=str(m.get("loss", "pair")),
-        accel_labels=str(m.get("accel_labels", "recorded")),
-        accel_space=str(m.get("accel_space", "acceleration")),
-        accel_weights=weights, init=m.get("weights_from"),
-        loss_weight=float(m.get("loss_weight", 1.0)),
-        eval_every=max(1, int(m["epochs"]) // 25), checkpoint_every=max(1, int(m["epochs"])),
+        lbfgs_steps=int(m.lbfgs), **m.integration(), **loss,
+        accel_weights=weights, init=weights_from,
+        eval_every=max(1, int(m.epochs) // 25), checkpoint_every=max(1, int(m.epochs)),
         momenta="velocity" if kind == "hamiltonian" else "auto",
     )
     t0 = time.perf_counter()
@@ -214,29 +215,37 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress, tag_n
         if only is not None and name not in only:
             continue
         m = variant_model(plan, variant, kind, files)
+        batch, weights_from = None, None  # the plan's batches; a fresh start
         if name == "hamiltonian-rk4":
-            if quick or variant.name not in RK4_VARIANTS.get(task, ()) or m.get("loss") != "accel":
+            if quick or variant.name not in RK4_VARIANTS.get(task, ()) or m.loss != "accel":
                 continue
-            m = {**m, "loss": "pair", "accel_labels": "recorded"}
+            m = dataclasses.replace(m, loss="pair", accel_labels="recorded")
         if name == "hamiltonian-known" and (quick or
                                             variant.name not in KNOWN_VARIANTS.get(task, ())):
             continue
         if name in FORCE_MODELS:
-            m = force_model(m, task, quick)
+            m, batch = force_model(m, task, quick)
         if name == "hamiltonian-weighted":
             if "hamiltonian-force" not in runs:
                 continue
             b = WEIGHTED_QUICK if quick else WEIGHTED_BUDGET
-            m = {**m, "epochs": int(b["epochs"]), "lr": float(b["lr"]),
-                 "weights_from": runs["hamiltonian-force"]}
+            m = dataclasses.replace(m, epochs=int(b["epochs"]), lr=float(b["lr"]))
+            weights_from = runs["hamiltonian-force"]
         known = name == "hamiltonian-known" or name in FORCE_MODELS
-        settings = {"plan": plan.to_dict(), "variant": variant.name, "model": m, "kind": kind}
+        model = m.to_dict()
+        if batch is not None:
+            model["batch_size"] = batch
+        if weights_from is not None:
+            model["weights_from"] = weights_from
+        settings = {"plan": plan.to_dict(), "variant": variant.name, "model": model,
+                    "kind": kind}
         if known:
             settings["known"] = True
         tag = f"{tag_name}-{name}"
         trained = stages.run(f"train-{tag}", settings,
-                             lambda f, k=kind, mm=m, kn=known: _train(
-                                 spec, plan, k, mm, files, f, progress, known=kn))
+                             lambda f, k=kind, mm=m, kn=known, bs=batch, w=weights_from: _train(
+                                 spec, plan, k, mm, files, f, progress, known=kn,
+                                 batch_size=bs, weights_from=w))
         runs[name] = trained["run"]
         pred = stages.run(f"predict-{tag}", {**settings, "max_step": PREDICT_MAX_STEP},
                           lambda f, t=trained: _predict(plan, files, t, f))
@@ -252,27 +261,26 @@ def _variant(task, spec, plan, variant, files, stages, *, quick, progress, tag_n
             "predict_step_s": pred.get("step_s"),
             "best_test_loss": trained["metrics"]["best_test_loss"]["mean"],
             "train_seconds": trained["metrics"]["seconds"]["mean"],
-            "epochs": int(m["epochs"]), "lbfgs_steps": int(m["lbfgs"]),
-            "substeps": int(m["substeps"]), "loss": str(m.get("loss", "pair")),
+            "epochs": int(m.epochs), "lbfgs_steps": int(m.lbfgs),
+            "substeps": int(m.substeps), "loss": str(m.trained_with("loss")),
             "momenta": trained["config"].get("momenta"),
             "state": trained["config"]["model"]["state_kind"],
             "accel_space": trained["config"].get("accel_space", "acceleration"),
             "accel_weights": trained.get("accel_weights"),
-            "lr": float(m["lr"]),
+            "lr": float(m.lr),
         }
     return out
 
 
-def force_model(m: dict, task: str, quick: bool) -> dict:
+def force_model(m: ModelBudget, task: str, quick: bool) -> tuple[ModelBudget, int | None]:
     """The recipe's model ``m`` (networks, sub-steps) trained in force space (see
-    :data:`FORCE_BUDGETS`): eq. 10 on differenced accelerations, a constant D, its own budget."""
+    :data:`FORCE_BUDGETS`): eq. 10 on differenced accelerations, a constant D, its own budget;
+    and its batch size (None: the plan's)."""
     b = FORCE_QUICK if quick else FORCE_BUDGETS[task]
-    out = {**m, "loss": "accel", "accel_labels": "differences", "accel_space": "force",
-           "damping_form": "constant", "epochs": int(b["epochs"]), "lr": float(b["lr"]),
-           "lbfgs": 0}
-    if b["batch_size"] is not None:
-        out["batch_size"] = int(b["batch_size"])
-    return out
+    out = dataclasses.replace(m, loss="accel", accel_labels="differences", accel_space="force",
+                              damping_form="constant", epochs=int(b["epochs"]),
+                              lr=float(b["lr"]), lbfgs=0)
+    return out, (int(b["batch_size"]) if b["batch_size"] is not None else None)
 
 
 def _excited_plan(plan, variant):

@@ -45,7 +45,7 @@ def _variant_label(variant: str, models: dict[str, Any]) -> str:
 
 
 def figure(results: dict[str, Any], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # deferred: matplotlib only where a figure is drawn
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt

@@ -1,33 +1,12 @@
-"""``softpinn control``: model-predictive control with learned models against the true model.
-
-Flags map onto :func:`softpinn.bridge.control.compare` and
-:class:`softpinn.bridge.control.MPCConfig`; the headline is one table per reference (tracking
-error, solve time per step, failures). Wired into the CLI by ``register(subparsers)``.
-"""
+"""``softpinn control MODEL --out DIR``: model-predictive control of a model's tip with learned
+models, the true model as plant; run in :mod:`bridge.cli._control_run`. The controller's flags
+take their defaults from :class:`softpinn.bridge.control.MPCConfig`, so they are added when the
+command is parsed."""
 
 from __future__ import annotations
 
-import json
-import sys
 
-import numpy as np
-
-from softpinn.bridge.control import (
-    QP_SOLVERS,
-    REFERENCES,
-    SENSITIVITIES,
-    SOLVERS,
-    MPCConfig,
-    compare,
-    default_input_bounds,
-)
-from softpinn.errors import UserError
-from softpinn.symbolic import load_spec
-
-
-def register(subparsers) -> None:
-
-    d = MPCConfig()
+def add_parser(subparsers):
     p = subparsers.add_parser(
         "control",
         help="model-predictive control of a model's tip with learned models (true model as "
@@ -41,6 +20,15 @@ def register(subparsers) -> None:
             "and traces/ into --out."
         ),
     )
+    p.set_defaults(func=run)
+    return p
+
+
+def add_arguments(p) -> None:
+    # deferred: casadi at start-up (the defaults are MPCConfig's)
+    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SENSITIVITIES, SOLVERS, MPCConfig
+
+    d = MPCConfig()
     p.add_argument("model", metavar="MODEL",
                    help="the plant: a preset name (see 'softpinn models') or spec file")
     p.add_argument("--runs", nargs="+", default=[], metavar="RUN",
@@ -132,117 +120,9 @@ def register(subparsers) -> None:
                         "(nothing in it is removed)")
     p.add_argument("--json", action="store_true", help="print results.json")
     p.add_argument("--quiet", action="store_true", help="no progress output")
-    p.set_defaults(func=cmd_control)
 
 
-def _bounds(values, m: int, flag: str):
-    if values is None:
-        return None
-    a = np.asarray(values, float)
-    if a.size not in (1, m):
-        raise UserError(f"{flag}: expected {m} values (one per input) or one, got {a.size}")
-    if np.any(np.isnan(a)):
-        raise UserError(f"{flag}: values must be numbers, got {a.tolist()}")
-    return tuple(float(v) for v in np.broadcast_to(a, (m,)))
+def run(args) -> int:
+    from softpinn.bridge.cli import _control_run  # deferred: casadi (and jax) at start-up
 
-
-def cmd_control(args) -> int:
-    if args.runs:  # the runs are rebuilt from float64 weights (as `softpinn export`)
-        import jax
-
-        jax.config.update("jax_enable_x64", True)
-
-    spec = load_spec(args.model)
-    if not (np.isfinite(args.rate) and args.rate > 0):
-        raise UserError(f"--rate: expected a rate in Hz > 0, got {args.rate}")
-    u_min = _bounds(args.u_min, spec.m, "--u-min")
-    u_max = _bounds(args.u_max, spec.m, "--u-max")
-    data_bounds = default_input_bounds(spec) if spec.m else None
-    if data_bounds is not None:
-        u_min = tuple(float(v) for v in data_bounds[0]) if u_min is None else u_min
-        u_max = tuple(float(v) for v in data_bounds[1]) if u_max is None else u_max
-    config = MPCConfig(
-        horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
-        stiffness=args.stiffness,
-        weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
-        u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
-        max_iter=args.max_iter, codegen=not args.no_codegen, offset_free=args.offset_free,
-        offset_free_rate=args.offset_free_rate,
-        sensitivities=args.sensitivities,
-    )
-    bar = _LazyBar(f"control {spec.name}", quiet=args.quiet)
-    try:
-        result = compare(
-            spec, args.runs, args.out, config=config, references=args.reference,
-            center=args.center, radius=args.radius, period=args.period, hold=args.hold,
-            duration=args.duration, include_true=not args.no_true,
-            include_linear=not args.no_linear, member=args.member, mean=args.mean,
-            force=args.force, compiler=args.compiler, log=bar.write, progress=bar.update,
-            progress_total=bar.set_total,
-        )
-    finally:
-        bar.close()
-    result.pop("traces", None)
-    if args.json:
-        print(json.dumps(result))
-        return 0
-    for line in headline(result):
-        print(line)
-    print(f"wrote {args.out}/report.md, results.json, figures/, traces/")
-    return 0
-
-
-class _LazyBar:
-    """A tqdm bar of control steps on stderr, opened at the first step (an input error before
-    it stays one line); ``write`` prints a line above it. Nothing with ``quiet``."""
-
-    def __init__(self, desc: str, *, quiet: bool):
-        self.desc, self.quiet, self.bar, self.total = desc, quiet, None, None
-
-    def set_total(self, total: int) -> None:
-        self.total = total
-
-    def update(self) -> None:
-        if self.quiet:
-            return
-        if self.bar is None:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(desc=self.desc, total=self.total, unit="step", file=sys.stderr,
-                            leave=False)
-        self.bar.update()
-
-    def write(self, line: str) -> None:
-        if self.quiet:
-            return
-        if self.bar is not None:
-            self.bar.write(line, file=sys.stderr)
-        else:
-            print(line, file=sys.stderr)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-def headline(result: dict) -> list[str]:
-    """Per reference, one row per controller: error RMS and max, solve time, failures."""
-    unit = result["output"]["unit"]
-    cfg = result["config"]
-
-    def num(v, fmt):
-        return "n/a" if v is None else format(v, fmt)
-
-    lines = [f"{result['model']}: MPC at {result['rate']:g} Hz, horizon {cfg['horizon']}, "
-             f"{cfg['solver']}; plant: the true model (cvodes)"]
-    width = max(len(n) for n in result["controllers"]) + 2
-    for rname, per in result["results"].items():
-        lines.append(f"{rname}: {'controller':<{width}}{'RMS [' + unit + ']':>12}"
-                     f"{'max [' + unit + ']':>12}{'solve ms':>10}{'max ms':>9}  failures")
-        for name, m in per.items():
-            fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
-            lines.append(f"{'':<{len(rname) + 2}}{name:<{width}}"
-                         f"{num(m['error_rms'], '.3g'):>12}{num(m['error_max'], '.3g'):>12}"
-                         f"{num(m['solve_ms_mean'], '.2f'):>10}{num(m['solve_ms_max'], '.2f'):>9}"
-                         f"  {fail}")
-    return lines
+    return _control_run.run(args)

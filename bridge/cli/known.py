@@ -1,11 +1,14 @@
 """``--known-input`` of ``softpinn train`` and ``sweep``: a fixed input matrix A(q) (the known
 actuator model of Section VI-B) from a constant matrix file, a spec's exact A(q) or a program
 written by ``softpinn derive --programs``, as the ``known_input`` text of
-:class:`softpinn.learn._models.ModelConfig`, with one-line errors for what does not fit the data."""
+:class:`softpinn.learn.ModelConfig`, with one-line errors for what does not fit the data."""
 
 from __future__ import annotations
 
 import json
+from pathlib import Path
+
+import numpy as np
 
 from softpinn.bridge.exact.serialize import spec_known_input
 from softpinn.errors import UserError
@@ -16,15 +19,10 @@ def known_input(source: str, n: int, m: int) -> str:
     """``--known-input``: the ``known_input`` text of a constant matrix file (.npy, or .json
     with a list of rows) or of a symbolic model's exact A(q) (a preset name or a spec path),
     checked against the data's n coordinates and m inputs."""
-    from pathlib import Path
-
-
     path = Path(source)
     if path.suffix in (".npy", ".json"):
         if not path.is_file():
             raise UserError(f"--known-input: no such file {source}")
-        import numpy as np
-
         try:
             if path.suffix == ".npy":
                 value = np.load(path, allow_pickle=False)
@@ -47,10 +45,8 @@ def known_input(source: str, n: int, m: int) -> str:
 
     try:
         text, sn, sm = spec_known_input(source)
-    except Exception as err:
-        if getattr(err, "softpinn_user_error", False):
-            raise UserError(f"--known-input: {err}") from None
-        raise
+    except UserError as err:
+        raise UserError(f"--known-input: {err}") from None
     if (sn, sm) != (n, m):
         raise UserError(f"--known-input: model {source} has n = {sn} coordinates and m = {sm} "
                         f"inputs; the data have n = {n}, m = {m}")
@@ -60,7 +56,6 @@ def known_input(source: str, n: int, m: int) -> str:
 def _known_program(source: str, data: dict, n: int, m: int) -> str:
     """``--known-input A.program.json``: A(q) as a replayable program (``softpinn derive
     --programs``), checked to be a function of the data's n coordinates with an n x m output."""
-
     outs = data.get("outputs")
     named = outs[0].get("name") if isinstance(outs, list) and len(outs) == 1 and isinstance(
         outs[0], dict) else None

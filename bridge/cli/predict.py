@@ -1,21 +1,11 @@
-"""``softpinn predict``: flags mapped onto :func:`learn._predict.predict`; the errors, and what
-the run's numbers need said beside them (:mod:`bridge.cli.runnotes`)."""
+"""``softpinn predict RUN DATA.npz``: one-step and rollout errors of a trained model; run in
+:mod:`bridge.cli._predict_run`."""
 
 from __future__ import annotations
 
-import json
-import sys
-from pathlib import Path
-from types import SimpleNamespace
 
-from softpinn.bridge.cli.learn import _enable_x64
-from softpinn.bridge.cli.runnotes import member_notes, note_interrupted, ran_away_text
-from softpinn.errors import UserError
-from softpinn.learn import predict
-
-
-def register(subparsers) -> None:
-    q = subparsers.add_parser(
+def add_parser(subparsers):
+    p = subparsers.add_parser(
         "predict",
         help="one-step and rollout errors of a trained model",
         description=(
@@ -24,25 +14,30 @@ def register(subparsers) -> None:
             "per trajectory, mean ± std over trajectories)."
         ),
     )
-    q.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
-    q.add_argument("data", metavar="DATA.npz", help="dataset file")
-    q.add_argument("--horizon", type=float, required=True, metavar="S",
+    p.set_defaults(func=run)
+    return p
+
+
+def add_arguments(p) -> None:
+    p.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
+    p.add_argument("data", metavar="DATA.npz", help="dataset file")
+    p.add_argument("--horizon", type=float, required=True, metavar="S",
                    help="rollout length [s] from each test trajectory's start")
-    q.add_argument(
+    p.add_argument(
         "--reset-every",
         type=float,
         default=None,
         metavar="S",
         help="re-set the state to the truth every S seconds",
     )
-    q.add_argument(
+    p.add_argument(
         "--dt",
         type=float,
         default=None,
         metavar="S",
         help="integrate with this step instead of the data's",
     )
-    q.add_argument(
+    p.add_argument(
         "--trajectories",
         nargs="+",
         default=["auto"],
@@ -50,65 +45,16 @@ def register(subparsers) -> None:
         help="'test' (the run's held-out ones), 'all', or ids (default: test if "
         "DATA is the training file, else all)",
     )
-    q.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
-    q.add_argument("--json", action="store_true", help="print one JSON object")
-    q.add_argument("--plot", default=None, metavar="FILE",
+    p.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--plot", default=None, metavar="FILE",
                    help="PNG of predicted vs true q (an existing file is replaced only if "
                    "softpinn wrote it, or with --force)")
-    q.add_argument("--force", action="store_true",
+    p.add_argument("--force", action="store_true",
                    help="let --plot replace a file that softpinn did not write")
-    q.set_defaults(func=cmd_predict)
 
 
-def cmd_predict(args) -> int:
-    _enable_x64()
+def run(args) -> int:
+    from softpinn.bridge.cli import _predict_run  # deferred: jax at start-up
 
-    if Path(args.run).is_file() and Path(args.data).is_dir():
-        raise UserError(f"RUN {args.run} is a file and DATA {args.data} a folder; the order is "
-                        "`softpinn predict RUN DATA.npz`")
-
-    traj = args.trajectories
-    if len(traj) == 1 and traj[0] in ("auto", "test", "all"):
-        traj = traj[0]
-    else:
-        try:
-            traj = [int(t) for t in traj]
-        except ValueError:
-            raise UserError(
-                f"--trajectories takes 'test', 'all' or integer ids, got {' '.join(traj)}"
-            ) from None
-    res = predict(
-        args.run,
-        args.data,
-        horizon=args.horizon,
-        reset_every=args.reset_every,
-        dt=args.dt,
-        trajectories=traj,
-        member=args.member,
-        plot=args.plot,
-        force=args.force,
-    )
-    out = res.to_json()
-    note_interrupted(out["run"])
-    for note in member_notes(args.run, SimpleNamespace(seed=out["seed"]), args.member):
-        print(f"softpinn: note: {note}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(out, allow_nan=False))
-        return 0
-    one = out["one_step_error"]
-    fmt = lambda x: "inf" if x is None else f"{x:.4e}"
-    print(f"one-step error: {fmt(one['mean'])} ± {fmt(one['std'])} over {one['pairs']} pairs")
-    extra = ""
-    if args.reset_every:
-        extra += f", reset every {args.reset_every:g} s"
-    if args.dt:
-        extra += f", dt {args.dt:g} s"
-    count = len(out["trajectories"])
-    print(
-        f"rollout error ({args.horizon:g} s{extra}): {fmt(out['rollout_error_mean'])} ± "
-        f"{fmt(out['rollout_error_std'])} over {count} trajector{'y' if count == 1 else 'ies'}"
-        f"{ran_away_text(res)}"
-    )
-    if out["plot"]:
-        print(f"plot: {out['plot']}")
-    return 0
+    return _predict_run.run(args)

@@ -7,7 +7,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from softpinn.learn import read_json, recorded_test_split
+from softpinn.learn import Stop, StopReason, read_json, recorded_test_split
 
 
 def member_notes(run_dir, run, member) -> list[str]:
@@ -33,9 +33,8 @@ def note_interrupted(run_dir) -> None:
         metrics = read_json(Path(run_dir) / "metrics.json")
     except Exception:  # noqa: BLE001 - no metrics: nothing to say
         return
-    stops = [m.get("stopped", "") for m in metrics.get("members", [metrics])
-             if isinstance(m, dict)]
-    cut = [s for s in stops if str(s).startswith("interrupted")]
+    stops = [Stop.read(m) for m in metrics.get("members", [metrics]) if isinstance(m, dict)]
+    cut = [s.detail for s in stops if s.reason is StopReason.INTERRUPTED]
     if cut:
         print(f"softpinn: note: the training of {run_dir} was {cut[0].split(' (')[0]}: its "
               "model is the best so far (train --resume finishes it)", file=sys.stderr)

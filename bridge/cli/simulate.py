@@ -1,167 +1,91 @@
-"""``softpinn simulate MODEL --out FILE.npz``: a data set (:func:`symbolic.simulation._datasets.make_dataset`)
-with the preset's ``[data]`` settings unless flags say otherwise (the flags are registered with
-the other symbolic commands in :mod:`bridge.cli.symbolic`)."""
+"""``softpinn simulate MODEL --out FILE.npz``: simulate trajectories of a model into a dataset
+file; run in :mod:`bridge.cli._simulate_run`."""
 
 from __future__ import annotations
 
-import sys
-import time
-from pathlib import Path
-
-import numpy as np
-
-from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
-from softpinn.errors import UserError
-from softpinn.symbolic import (
-    attach,
-    check_seed,
-    count_of,
-    data_config,
-    equilibria,
-    load_spec,
-    make_dataset,
-    plan_dataset,
-    resample,
-    write_datasets,
-)
+SIGNALS = ("zero", "sinusoid", "multisine", "step", "chirp")
 
 
-def _test_words(data) -> str:
-    """'; trajectories 8, 9 for test' (the split train holds out by default), or ''."""
-    test = (data.meta.get("splits") or {}).get("test") or []
-    if not test:
-        return ""
-    ids = ", ".join(map(str, test))
-    return f"; trajector{'y' if len(test) == 1 else 'ies'} {ids} for test"
-
-
-def cmd_simulate(args) -> int:
-
-    spec = load_spec(args.model)
-    cfg = data_config(spec)
-    out = Path(args.out)
-    if out.suffix != ".npz":
-        raise UserError(f"--out {out}: a dataset file must end in .npz")
-    for field in ("duration", "rate", "dt", "rtol", "atol"):
-        if getattr(args, field) is not None:
-            positive(field, getattr(args, field))
-    if args.trajectories is not None and args.trajectories < 1:
-        raise UserError(f"--trajectories: must be at least 1, got {args.trajectories}")
-    if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
-        raise UserError(f"--noise: must be a non-negative standard deviation, got {args.noise}")
-    if args.settle is not None and not (np.isfinite(args.settle) and args.settle >= 0):
-        raise UserError(f"--settle: must be a non-negative number of seconds, got {args.settle}")
-    if args.threads < 1:
-        raise UserError(f"--threads: must be at least 1, got {args.threads}")
-    if args.equilibria < 0:
-        raise UserError(f"--equilibria: must be a count >= 0, got {args.equilibria}")
-    if args.seed is not None:
-        check_seed(args.seed)
-    use_jax = args.integrator == "jax-rk4"
-    integrator = "rk4" if use_jax else (
-        args.integrator or ("rk4" if args.dt is not None else cfg.integrator))
-    if args.dt is not None and integrator != "rk4":
-        raise UserError("--dt: is the fixed step of --integrator rk4; cvodes takes --rate")
-    # the paper's resampled rates (task 5): the file at the highest, siblings at the others
-    extra_rates: list[float] = []
-    if integrator == "cvodes" and args.rate is None and len(cfg.rates) > 1:
-        extra_rates = sorted(r for r in cfg.rates if r != cfg.rate)
-    targets = [out] + [_sibling(out, r) for r in extra_rates]
-    for path in targets:
-        if path.is_dir():
-            raise UserError(f"--out {path}: is a folder, not a dataset file")
-        if path.exists() and not args.force:
-            raise UserError(f"--out {path}: file exists (use --force to overwrite)")
-    check_writable("--out", out)
-
-    plan = plan_dataset(
-        spec,
-        trajectories=args.trajectories,
-        duration=args.duration,
-        settle=args.settle,
-        rate=args.rate,
-        dt=args.dt,
-        integrator=integrator,
-        signal=args.signal,
-        seed=args.seed,
-        noise=args.noise,
-        rtol=args.rtol,
-        atol=args.atol,
-        threads=args.threads,
+def add_parser(subparsers):
+    p = subparsers.add_parser(
+        "simulate",
+        help="simulate trajectories of a model into a dataset file (.npz)",
+        description="Simulate trajectories (compiled equations of motion, cvodes or fixed-step "
+        "RK4) and write a dataset file. Every setting not given comes from the spec's [data] "
+        "table (a preset's: the paper's settings), or, for a spec without one, from defaults "
+        "worked out from its physics (printed when used).",
     )
-    bar = None
-    if not args.quiet:
-        from tqdm import tqdm
+    p.set_defaults(func=run)
+    return p
 
-        bar = tqdm(
-            total=plan.trajectories, desc=f"simulate {spec.name}", unit="traj", file=sys.stderr
-        )
-    failed = True
-    try:
-        t0 = time.perf_counter()
-        with warnings_as_lines():
-            if args.ray is not None and use_jax:
-                raise UserError("--ray: farms out the CasADi integrators; --integrator jax-rk4 "
-                                "runs every trajectory at once already")
-            if args.ray is not None:
-                from softpinn.symbolic import ray_simulator
 
-                sim = ray_simulator(spec, address=args.ray, compile=not args.no_compile,
-                                    cache=args.cache, num_cpus=args.threads
-                                    if args.ray == "local" and args.threads > 1 else None)
-                data = make_dataset(plan=plan, simulator=sim,
-                                    progress=bar.update if bar is not None else None,
-                                    simulator_meta={"compiled": not args.no_compile,
-                                                    "farmed_out": f"ray ({args.ray})"})
-            elif use_jax:
-                from softpinn.bridge.cli.learn import _enable_x64
-                from softpinn.bridge.exact import make_dataset as jax_dataset
-
-                _enable_x64()
-                data = jax_dataset(plan=plan, progress=bar.update if bar is not None else None,
-                                   backend="jax" if args.no_compile else "auto")
-            else:
-                data = make_dataset(
-                    plan=plan,
-                    compile=not args.no_compile,
-                    cache=args.cache,
-                    progress=bar.update if bar is not None else None,
-                )
-        seconds = time.perf_counter() - t0
-        failed = False
-    finally:
-        if bar is not None:
-            bar.leave = not failed  # an error leaves one clean line on stderr
-            bar.close()
-    if args.equilibria:
-
-        data = attach(data, equilibria(spec, args.equilibria, seed=plan.seed))
-    subs = [resample(data, rate) for rate in extra_rates]
-    # every file complete before any appears: an interrupt leaves none, so a rerun is not refused
-    write_datasets([(out, data), *zip(targets[1:], subs, strict=True)], force=args.force)
-    k, per = data.meta["trajectories"], data.meta["samples_per_trajectory"]
-    print(
-        f"{spec.name}: wrote {out} ({count_of(k, 'trajectory', 'trajectories')} x "
-        f"{count_of(per, 'sample')} at "
-        f"{data.meta['rate']:g} Hz, {data.meta['simulation']['integrator']}"
-        f"{_batch_word(data) if use_jax else ''}{_test_words(data)}) in {seconds:.2f} s"
+def add_arguments(p) -> None:
+    p.add_argument("model", metavar="MODEL",
+                   help="preset name (see 'softpinn models') or spec file")
+    p.add_argument("--out", required=True, metavar="FILE.npz", help="dataset file to write")
+    p.add_argument("--trajectories", type=int, metavar="K",
+                   help="number of trajectories (default: [data]'s train and test counts)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="seconds per trajectory (default: [data] duration)")
+    p.add_argument(
+        "--settle",
+        type=float,
+        metavar="S",
+        help="seconds simulated before recording starts (default: [data] settle)",
     )
-    if args.equilibria:
-        info = data.meta["equilibria"]
-        print(f"{spec.name}: {args.equilibria} stable equilibria (largest residual "
-              f"{info['max_residual']:.1e}, {info['draws']} inputs drawn)")
-    for rate, path, sub in zip(extra_rates, targets[1:], subs, strict=True):
-        print(
-            f"{spec.name}: wrote {path} (resampled at {rate:g} Hz, "
-            f"{sub.meta['samples_per_trajectory']} samples per trajectory)"
-        )
-    return 0
+    p.add_argument("--rate", type=float, metavar="HZ",
+                   help="output rate [Hz] (default: [data] rate)")
+    p.add_argument(
+        "--dt", type=float, metavar="S", help="fixed RK4 step [s] (implies --integrator rk4)"
+    )
+    p.add_argument("--ray", nargs="?", const="local", default=None, metavar="ADDRESS",
+                   help="farm the trajectories out to Ray: a local instance (no ADDRESS), "
+                   "'auto' or HOST:PORT of a cluster (needs softpinn[ray]; the data set is the "
+                   "same as without)")
+    p.add_argument("--integrator", choices=("cvodes", "rk4", "jax-rk4"),
+                   help="cvodes (adaptive, CasADi), rk4 (fixed step, CasADi) or jax-rk4 (fixed "
+                   "step, every trajectory at once: batched C kernels of the exact model on "
+                   "the CPU, its JAX translation on a GPU or with --no-compile; default: the "
+                   "spec's)")
+    p.add_argument("--signal", choices=SIGNALS, help="input signal kind (ranges from [data])")
+    p.add_argument("--seed", type=int, metavar="S", help="random seed (default: [data] seed)")
+    p.add_argument(
+        "--noise",
+        type=float,
+        metavar="SIGMA",
+        help="standard deviation of Gaussian measurement noise (default: [data] noise, "
+        "else 0)",
+    )
+    p.add_argument("--equilibria", type=int, default=0, metavar="K",
+                   help="also store K stable static equilibria G(q*) = A(q*) u* under constant "
+                   "inputs drawn in the signals' input box (eq_q, eq_u, eq_force; labels for "
+                   "train --equilibrium-weight; default 0: none)")
+    p.add_argument("--rtol", type=float,
+                   help="cvodes relative tolerance (default: [data] rtol, else 1e-10)")
+    p.add_argument("--atol", type=float,
+                   help="cvodes absolute tolerance (default: [data] atol, else 1e-10)")
+    p.add_argument(
+        "--threads",
+        type=int,
+        default=2,
+        metavar="N",
+        help="trajectories integrated at once (default 2)",
+    )
+    p.add_argument(
+        "--no-compile",
+        action="store_true",
+        help="run the equations in CasADi's virtual machine, no C compiler",
+    )
+    p.add_argument(
+        "--cache",
+        metavar="DIR",
+        help="compiled-code cache (default $SOFTPINN_CACHE or ~/.cache/softpinn)",
+    )
+    p.add_argument("--force", action="store_true", help="overwrite existing output files")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _batch_word(data) -> str:
-    """How --integrator jax-rk4 ran: in JAX or in the batched C kernels."""
-    return " in JAX" if data.meta.get("compiled") == "jax" else " in batched C kernels"
+def run(args) -> int:
+    from softpinn.bridge.cli import _simulate_run  # deferred: casadi (and jax) at start-up
 
-
-def _sibling(path: Path, rate: float) -> Path:
-    return path.with_name(f"{path.stem}_{rate:g}hz{path.suffix}")
+    return _simulate_run.run(args)

@@ -1,20 +1,9 @@
-"""``softpinn sweep``: flags mapped onto :func:`softpinn.bridge.sweep.sweep` (Ray Tune; the
-optional extra ``softpinn[ray]``). The settings fixed for every trial are ``softpinn train``'s
-flags; ``--grid`` and ``--random`` vary others; a progress bar counts the finished trials."""
+"""``softpinn sweep DATA.npz --model KIND --out DIR``: a hyperparameter sweep or seed ensemble
+through Ray Tune (the optional extra ``softpinn[ray]``); run in :mod:`bridge.cli._sweep_run`.
+The settings fixed for every trial are ``softpinn train``'s flags
+(:mod:`bridge.cli.trainflags`); ``--grid`` and ``--random`` vary others."""
 
 from __future__ import annotations
-
-import json
-import sys
-
-from softpinn.bridge.sweep import METRICS, RAY_MISSING, SCHEDULERS, parse_space, sweep
-from softpinn.bridge.sweep.space import RANDOM_KINDS, dashed
-from softpinn.errors import UserError
-from softpinn.learn import TrainConfig, load_dataset
-
-#: train flags the sweep spells otherwise or leaves out: its --seeds and --samples are its own,
-#: and a trial trains one seed, so the ensemble mode does not apply
-_OWN = ("seeds", "samples", "test_trajectories", "ensemble")
 
 
 def _split_flags(group) -> None:
@@ -27,20 +16,7 @@ def _split_flags(group) -> None:
                        help="hold out K trajectories drawn at random")
 
 
-def _add_settings(parser) -> None:
-    """``softpinn train``'s setting and network flags (defaults and help from the configs),
-    less the ones a sweep decides per trial (seeds) or names otherwise (--train-samples)."""
-    from softpinn.bridge.cli.learn import add_network_flags, add_setting_flags
-
-    add_setting_flags(parser, skip=_OWN, split_flags=_split_flags,
-                      title=lambda g: f"{g} (fixed for every trial unless swept)")
-    add_network_flags(parser, "network (fixed for every trial)")
-
-
-def register(subparsers) -> None:
-
-    from softpinn.bridge.cli.learn import MODEL_KINDS, track_given
-
+def add_parser(subparsers):
     p = subparsers.add_parser(
         "sweep",
         help="hyperparameter sweep or seed ensemble through Ray Tune (pip install "
@@ -54,6 +30,24 @@ def register(subparsers) -> None:
             "best trial. Needs Ray: pip install 'softpinn[ray]'."
         ),
     )
+    p.set_defaults(func=run, given=frozenset())
+    return p
+
+
+def add_arguments(p) -> None:
+    # deferred: jax at start-up (train's flags and their defaults are TrainConfig's)
+    from softpinn.bridge.cli.trainflags import (
+        MODEL_KINDS,
+        SWEEP_OWN,
+        add_network_flags,
+        add_setting_flags,
+        track_given,
+    )
+
+    # deferred: jax and casadi at start-up (the sweep's choices)
+    from softpinn.bridge.sweep import METRICS, SCHEDULERS
+    from softpinn.bridge.sweep.space import RANDOM_KINDS  # deferred, as the line above
+
     p.add_argument("data", metavar="DATA.npz", help="dataset file")
     p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
     p.add_argument("--out", required=True, metavar="DIR", help="output folder of the sweep")
@@ -99,7 +93,9 @@ def register(subparsers) -> None:
                    "the trials run on CPU)")
     r.add_argument("--max-concurrent", type=int, default=None, metavar="N",
                    help="at most N trials at once (default: as many as the resources allow)")
-    _add_settings(p)
+    add_setting_flags(p, skip=SWEEP_OWN, split_flags=_split_flags,
+                      title=lambda g: f"{g} (fixed for every trial unless swept)")
+    add_network_flags(p, "network (fixed for every trial)")
     o = p.add_argument_group("output")
     o.add_argument("--force", action="store_true",
                    help="write into a folder that holds other things (removes nothing of "
@@ -108,100 +104,10 @@ def register(subparsers) -> None:
     o.add_argument("--verbose", action="store_true",
                    help="Ray Tune's own status tables and the trials' logs")
     o.add_argument("--json", action="store_true", help="print the results as one JSON object")
-    p.set_defaults(func=cmd_sweep, given=frozenset())
     track_given(p)
 
 
-class _Bar:
-    """A tqdm bar (stderr) of finished trials, with the best loss so far; drawn once Ray is up
-    (an error before that stays one line)."""
+def run(args) -> int:
+    from softpinn.bridge.cli import _sweep_run  # deferred: jax at start-up
 
-    def __init__(self, disable: bool):
-        self.disable = disable
-        self.bar = None
-        self.best = None
-
-    def __call__(self, info: dict) -> None:
-        if self.bar is None:
-            from tqdm.auto import tqdm
-
-            self.bar = tqdm(total=info["total"], file=sys.stderr, unit="trial", desc="sweep",
-                            dynamic_ncols=True, disable=self.disable)
-        loss = info.get("best_test_loss")
-        if loss is not None and loss == loss and (self.best is None or loss < self.best):
-            self.best = loss
-        if info["event"] in ("complete", "error"):
-            self.bar.update(max(0, info["finished"] - self.bar.n))
-        if self.best is not None:
-            self.bar.set_postfix({"best": f"{self.best:.3e}"}, refresh=False)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-
-
-def cmd_sweep(args) -> int:
-    import importlib.util
-
-
-    try:
-        have_ray = importlib.util.find_spec("ray") is not None
-    except (ImportError, ValueError):
-        have_ray = False
-    if not have_ray:
-        raise UserError(RAY_MISSING)
-
-    space = parse_space(args.grid or [], args.random or [])
-    for name in space:
-        if name in args.given:
-            raise UserError(f"--{dashed(name)} is fixed for every trial and swept with "
-                            f"--grid/--random: give one")
-    if args.test_trajectories is not None and args.test_count is not None:
-        raise UserError("give --test-trajectories or --test-count, not both")
-
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-
-    from softpinn.bridge.cli.learn import _model_config
-
-    data = load_dataset(args.data)
-    test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
-    fixed = {f.name: getattr(args, f.name) for f in TrainConfig.settings() if f.name not in _OWN}
-    base = TrainConfig(model=_model_config(args, data.n, data.m, data), test_trajectories=test,
-                       samples=args.train_samples, **fixed)
-    bar = _Bar(disable=args.quiet or args.verbose)
-    try:
-        result = sweep(data, base, space, args.out, samples=args.samples, seeds=args.seeds,
-                       address=args.address, scheduler=args.scheduler, metric=args.metric,
-                       cpus_per_trial=args.cpus_per_trial, gpus_per_trial=args.gpus_per_trial,
-                       max_concurrent=args.max_concurrent, num_cpus=args.cpus,
-                       grace_period=args.grace_period, reduction_factor=args.reduction_factor,
-                       random_seed=args.random_seed, force=args.force,
-                       verbose=2 if args.verbose else 0, progress=bar)
-    finally:
-        bar.close()
-    rows, best = result.rows, result.best
-    if args.json:
-        from softpinn.bridge.cli.learn import _nulls
-
-        print(json.dumps(_nulls({"out": str(result.out), "best": best, "trials": len(rows),
-                                 "results": rows}), allow_nan=False))
-        return 0 if best is not None else 1
-    counts = {"completed": sum(r["status"] == "completed" for r in rows),
-              "stopped early": sum(r["stopped_early"] for r in rows),
-              "diverged": sum(r["status"] == "diverged" for r in rows),
-              "failed": sum(r["path"] is None for r in rows)}
-    print(f"{len(rows)} trials: " + ", ".join(f"{n} {k}" for k, n in counts.items()
-                                              if n or k in ("completed", "stopped early")))
-    if best is None:
-        errors = [r["status"] for r in rows if r["status"].startswith("error")]
-        print("no trial reached a finite test loss" + (f" ({errors[0]})" if errors else "")
-              + "; see " + str(result.out / "results.md"))
-        return 1
-    settings = ", ".join(f"{dashed(k)}={v}" for k, v in best["settings"].items())
-    print(f"best: {best['trial']} ({settings}{', ' if settings else ''}seed {best['seed']}), "
-          f"best test loss {best['best_test_loss']:.4e}")
-    print(f"best run: {result.out / 'best'} -> {result.best_dir}")
-    print(f"results: {result.out / 'results.md'}")
-    return 0
+    return _sweep_run.run(args)

@@ -1,7 +1,9 @@
 """Model-predictive control with learned models: CasADi, generated C, the true model as plant.
 
-    from softpinn.bridge.control import MPC, MPCConfig, compare, from_run, tip_output
+    from softpinn.bridge.control import MPC, ControlConfig, MPCConfig, compare, from_run, tip_output
     result = compare("task4", ["runs/lnn"], "control-out")      # what `softpinn control` does
+    compare("task4", ["runs/lnn"], None, ControlConfig(mpc=MPCConfig(horizon=10),
+                                                       references=("step",)))
 
     # or piece by piece:
     model = from_run("runs/lnn", tip_output(spec), export_dir="exported/lnn")
@@ -11,7 +13,8 @@
 See docs/control.md.
 """
 
-from softpinn.bridge.control.compare import REFERENCES, compare
+from softpinn.bridge.control.compare import compare
+from softpinn.bridge.control.config import REFERENCES, ControlConfig
 from softpinn.bridge.control.loop import closed_loop, metrics, plant
 from softpinn.bridge.control.models import (
     PredictionModel,
@@ -36,6 +39,7 @@ from softpinn.bridge.control.references import (
 )
 
 __all__ = [
+    "ControlConfig",
     "MPC",
     "MPCConfig",
     "PredictionModel",

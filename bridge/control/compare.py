@@ -19,6 +19,7 @@ reference's centre. It writes into ``out``:
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import os
 import platform
@@ -29,10 +30,13 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
+from softpinn._version import __version__
 from softpinn.bridge.base import outputs
 from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.control.config import REFERENCES, ControlConfig
 from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
 from softpinn.bridge.control.models import (
     PredictionModel,
@@ -43,7 +47,7 @@ from softpinn.bridge.control.models import (
     resolve_run,
     tip_output,
 )
-from softpinn.bridge.control.mpc import MPC, MPCConfig
+from softpinn.bridge.control.mpc import MPC
 from softpinn.bridge.control.references import (
     circle_reference,
     circle_start,
@@ -53,14 +57,14 @@ from softpinn.bridge.control.references import (
     step_reference,
     step_targets,
 )
+from softpinn.bridge.control.report import write_report
 from softpinn.errors import UserError
+from softpinn.files import atomic_write, write_json
 from softpinn.symbolic import TrueModel, load_spec
 
-__all__ = ["compare", "REFERENCES", "FORMAT"]
+__all__ = ["compare", "ControlConfig", "REFERENCES", "FORMAT"]
 
 FORMAT = "softpinn-control"
-#: the references :func:`compare` knows
-REFERENCES = ("circle", "step")
 
 
 def machine() -> str:
@@ -124,62 +128,45 @@ def _unique(name: str, taken) -> str:
     return f"{name}-{i}"
 
 
-def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = None,
-            references: Sequence[str] = REFERENCES, center=None, radius: float | None = None,
-            period: float = 4.0, hold: float = 1.0, duration: float | None = None,
-            include_true: bool = True, include_linear: bool = True,
-            member: int | None = None, mean: bool = False, force: bool = False,
-            names: Sequence[str] | None = None, compiler=None,
+def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None = None, *,
+            names: Sequence[str] | None = None, compiler=None, force: bool = False,
             log: Callable[[str], None] | None = None,
             progress: Callable[[], None] | None = None,
             progress_total: Callable[[int], None] | None = None) -> dict:
     """Compare MPC with each prediction model on the plant ``model`` (a preset name, spec file
-    or :class:`~softpinn.symbolic.spec._spec.ModelSpec`); returns what ``results.json`` holds.
+    or :class:`~softpinn.symbolic.ModelSpec`); returns what ``results.json`` holds.
 
     ``runs``: trained runs (``softpinn train`` directories, ``softpinn reproduce`` stage
-    folders holding ``run/``) or ``softpinn export`` directories; ``member``/``mean`` choose
-    the ensemble member exported. ``references``: "circle" and/or "step" around ``center`` (q,
-    default: the middle of the spec's initial coordinates) with ``radius`` (in q's first two
-    coordinates); one circle takes ``period`` s, each step is held ``hold`` s; ``duration``
-    overrides both lengths. ``out``: the folder written (None: nothing is written).
-    ``log``: called with one line per finished simulation. ``progress``: once per step;
-    ``progress_total``: once, before the first step, with the number of steps of all the
-    simulations (controllers x references).
+    folders holding ``run/``) or ``softpinn export`` directories, named ``names`` (default:
+    their model kinds). ``config`` (default ``ControlConfig()``): the controller's settings,
+    the references, the controllers beside the runs' and the ensemble member exported of each
+    run (:class:`~.config.ControlConfig`). ``compiler``: the C compiler of the generated code.
+    ``out``: the folder written (None: nothing is written); one that holds anything but an
+    earlier comparison is refused unless ``force``. ``log``: called with one line per finished
+    simulation. ``progress``: once per step; ``progress_total``: once, before the first step,
+    with the number of steps of all the simulations (controllers x references).
     """
-    from softpinn import __version__
-
     t_start = time.perf_counter()
-    config = MPCConfig() if config is None else config
+    config = ControlConfig() if config is None else config
+    if not isinstance(config, ControlConfig):
+        raise UserError(f"config: expected a ControlConfig, got {type(config).__name__}")
+    mpc_config = config.mpc
     spec = load_spec(model)
     if spec.m == 0:
         raise UserError(f"model: {spec.name} has no inputs (actuation none): there is nothing "
                         "to control; give a spec with an actuation")
-    references = list(dict.fromkeys(references))
-    for name in references:
-        if name not in REFERENCES:
-            raise UserError(f"reference: expected one of {', '.join(REFERENCES)}, got "
-                            f"{name!r}")
-    if not references:
-        raise UserError("reference: give at least one reference")
     runs = list(runs)
-    if not (include_true or include_linear or runs):
+    if not (config.include_true or config.include_linear or runs):
         raise UserError("runs: nothing to compare (no run, and the true and linearised "
                         "controllers are off)")
     if names is not None and len(names) != len(runs):
         raise UserError(f"names: expected one name per run ({len(runs)}), got {len(names)}")
-    center = default_center(spec) if center is None else np.asarray(center, float).ravel()
+    center = (default_center(spec) if config.center is None
+              else np.asarray(config.center, float).ravel())
     if center.size != spec.n or not np.all(np.isfinite(center)):
         raise UserError(f"center: expected {spec.n} finite coordinates of {spec.name} "
                         f"({', '.join(spec.coordinate_names)}), got {center.size}")
-    radius = default_radius(spec) if radius is None else float(radius)
-    if not (np.isfinite(radius) and radius >= 0):
-        raise UserError(f"radius: expected a finite number >= 0, got {radius!r}")
-    for key, value in (("period", period), ("hold", hold)):
-        if not (np.isfinite(value) and value > 0):
-            raise UserError(f"{key}: expected a number of seconds > 0, got {value!r}")
-    if duration is not None and not (np.isfinite(duration) and duration > 0):
-        raise UserError(f"duration: expected a number of seconds > 0, got {duration!r}")
-
+    radius = default_radius(spec) if config.radius is None else config.radius
 
     if out is not None:
         outputs.check(Path(out), "control", force=force)  # one line, before any work
@@ -192,7 +179,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     # the prediction models; runs are exported to a scratch folder first, so that a bad run
     # or member fails before anything is written to ``out``
     models: list[PredictionModel] = []
-    if include_true:
+    if config.include_true:
         models.append(from_true(tm, output, "true"))
     taken = {m.name for m in models} | {"linearised"}
     kinds = [_run_kind(run) for run in runs]  # every RUN checked before the first export
@@ -203,8 +190,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
             name = _unique(names[i] if names is not None else kinds[i], taken)
             taken.add(name)
             export_dir = Path(scratch.name) / _safe(name)
-            pm = from_run(run, output, export_dir=export_dir, name=name, member=member,
-                          mean=mean, compiler=compiler)
+            pm = from_run(run, output, export_dir=export_dir, name=name, member=config.member,
+                          mean=config.mean, compiler=compiler)
             if (pm.n, pm.m) != (spec.n, spec.m):
                 raise UserError(f"runs: {run} learned a model with n = {pm.n}, m = {pm.m}; "
                                 f"{spec.name} has n = {spec.n}, m = {spec.m}")
@@ -214,7 +201,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
             if export_dir.is_dir():
                 exported[name] = export_dir
             models.append(pm)
-        if include_linear:
+        if config.include_linear:
             models.append(linearised(tm, np.concatenate([qc, np.zeros(spec.n)]), uc, output))
         out_dir = outputs.claim(out, "control", force=force) if out is not None else None
         if out_dir is not None:
@@ -232,17 +219,18 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     finally:
         scratch.cleanup()
 
-    refs = _references(tm, output, references, dt=config.dt, horizon=config.horizon,
-                       center=center, radius=radius, period=period, hold=hold,
-                       duration=duration)
-    plant_fn = plant(tm, config.dt)
+    refs = _references(tm, output, config.references, dt=mpc_config.dt,
+                       horizon=mpc_config.horizon, center=center, radius=radius,
+                       period=config.period, hold=config.hold, duration=config.duration)
+    plant_fn = plant(tm, mpc_config.dt)
 
     controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}
     if progress_total is not None:
         progress_total(len(models) * sum(int(ref["steps"]) for ref in refs.values()))
     for pm in models:
         t0 = time.perf_counter()
-        mpc = MPC(pm, config, operating_point=(qc, np.zeros(spec.n), uc), compiler=compiler)
+        mpc = MPC(pm, mpc_config, operating_point=(qc, np.zeros(spec.n), uc),
+                  compiler=compiler)
         controllers[pm.name] = {**{k: v for k, v in pm.info.items() if k != "x0"},
                                 "build_seconds": time.perf_counter() - t0,
                                 "compiled": bool(mpc.compiled),
@@ -253,7 +241,7 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
                               progress=progress)
             met = metrics(res)
             if pm.info.get("q_range"):  # a learned model: did the arm leave its data?
-                met["outside_data"] = outside_data(res["x"], pm.info["q_range"], config.dt,
+                met["outside_data"] = outside_data(res["x"], pm.info["q_range"], mpc_config.dt,
                                                    spec.coordinate_names)
             results[rname][pm.name] = met
             traces[rname][pm.name] = res
@@ -271,8 +259,8 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
                   "feedback": "the exact state (q, qd), no noise", "hold": "zero-order"},
         "output": {"what": "tip position" if spec.kind in ("spatial-pcc", "planar-pcc")
                    else "q", "components": components, "unit": unit},
-        "config": dataclasses.asdict(config),
-        "rate": 1.0 / config.dt,
+        "config": dataclasses.asdict(mpc_config),
+        "rate": 1.0 / mpc_config.dt,
         "references": {k: v["info"] for k, v in refs.items()},
         "controllers": controllers,
         "results": results,
@@ -280,11 +268,12 @@ def compare(model, runs: Sequence = (), out=None, *, config: MPCConfig | None = 
     }
     result = to_jsonable(result)
     if out_dir is not None:
+        # matplotlib only when figures are drawn (``import softpinn.bridge.control`` stays
+        # light)
         from softpinn.bridge.control.plots import write_figures
-        from softpinn.bridge.control.report import write_report
 
         written = [_write_json(out_dir / "results.json", result)]
-        written += _write_traces(out_dir, refs, traces, config.dt)
+        written += _write_traces(out_dir, refs, traces, mpc_config.dt)
         figures = write_figures(out_dir / "figures", spec, refs, traces, result)
         written += [out_dir / f for f in figures]
         written.append(write_report(out_dir / "report.md", result, figures))
@@ -324,9 +313,7 @@ def _load() -> list[float] | None:
 
 
 def _casadi_version() -> str:
-    import casadi
-
-    return casadi.__version__
+    return ca.__version__
 
 
 def _line(ref: str, name: str, met: dict, unit: str) -> str:
@@ -345,10 +332,7 @@ def _line(ref: str, name: str, met: dict, unit: str) -> str:
 
 
 def _write_json(path: Path, obj) -> Path:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, allow_nan=False) + "\n")
-    os.replace(tmp, path)
-    return path
+    return write_json(path, obj, indent=1)  # strict, non-finite as null, written whole
 
 
 def _write_traces(out: Path, refs, traces, dt: float) -> list[Path]:
@@ -371,8 +355,8 @@ def _write_traces(out: Path, refs, traces, dt: float) -> list[Path]:
             arrays[f"{key}__lifted_iterations"] = res["lifted_iterations"]
         arrays["names"] = np.array(list(per))
         path = folder / f"{rname}.npz"
-        tmp = folder / f".{rname}.tmp.npz"
-        np.savez(tmp, **arrays)
-        os.replace(tmp, path)
+        buf = io.BytesIO()
+        np.savez(buf, **arrays)
+        atomic_write(path, buf.getvalue())
         paths.append(path)
     return paths

@@ -1,15 +1,19 @@
 """The settings of the model-predictive controller (:class:`MPCConfig`) and the solvers it
-offers; the controller itself is :mod:`.mpc`."""
+offers, and those of a comparison of controllers (:class:`ControlConfig`); the controller
+itself is :mod:`.mpc`, the comparison :mod:`.compare`."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from softpinn.errors import UserError
 
-__all__ = ["MPCConfig", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
+__all__ = ["ControlConfig", "MPCConfig", "REFERENCES", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
+
+#: the references :func:`~softpinn.bridge.control.compare` knows
+REFERENCES = ("circle", "step")
 
 #: the MPC solvers: Gauss-Newton SQP (compiled C, dense QP) and IPOPT (exact Hessian)
 SOLVERS = ("sqp", "ipopt")
@@ -120,3 +124,57 @@ class MPCConfig:
         if self.qpsol not in QP_SOLVERS:
             raise UserError(f"qpsol: expected one of {', '.join(QP_SOLVERS)}, got "
                             f"{self.qpsol!r}")
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """What :func:`~softpinn.bridge.control.compare` compares, and on which references.
+
+    ``mpc``: the controller's settings (every controller gets the same). ``references``:
+    "circle" and/or "step" (in that order of first mention) around ``center`` (q; None: the
+    middle of the spec's initial coordinates) with ``radius`` (in q's first two coordinates;
+    None: 15 % of their range); one circle takes ``period`` s, each step is held ``hold`` s;
+    ``duration`` (s) overrides both lengths. ``include_true`` / ``include_linear``: the
+    controllers with the true model and with it linearised at the centre, beside the runs';
+    ``member`` / ``mean``: the ensemble member exported of each run (default: its best), or
+    the mean of their fields.
+    """
+
+    mpc: MPCConfig = field(default_factory=MPCConfig)
+    references: tuple[str, ...] = REFERENCES
+    center: tuple[float, ...] | None = None
+    radius: float | None = None
+    period: float = 4.0
+    hold: float = 1.0
+    duration: float | None = None
+    include_true: bool = True
+    include_linear: bool = True
+    member: int | None = None
+    mean: bool = False
+
+    def __post_init__(self):
+        if not isinstance(self.mpc, MPCConfig):
+            raise UserError(f"mpc: expected an MPCConfig, got {type(self.mpc).__name__}")
+        references = tuple(dict.fromkeys(self.references))
+        for name in references:
+            if name not in REFERENCES:
+                raise UserError(f"reference: expected one of {', '.join(REFERENCES)}, got "
+                                f"{name!r}")
+        if not references:
+            raise UserError("reference: give at least one reference")
+        object.__setattr__(self, "references", references)
+        if self.center is not None:
+            object.__setattr__(self, "center", tuple(
+                float(v) for v in np.asarray(self.center, float).ravel()))
+        if self.radius is not None:
+            radius = float(self.radius)
+            if not (np.isfinite(radius) and radius >= 0):
+                raise UserError(f"radius: expected a finite number >= 0, got {radius!r}")
+            object.__setattr__(self, "radius", radius)
+        for key in ("period", "hold"):
+            value = getattr(self, key)
+            if not (np.isfinite(value) and value > 0):
+                raise UserError(f"{key}: expected a number of seconds > 0, got {value!r}")
+        if self.duration is not None and not (np.isfinite(self.duration) and self.duration > 0):
+            raise UserError(f"duration: expected a number of seconds > 0, got "
+                            f"{self.duration!r}")

@@ -12,7 +12,9 @@ and an output map ``output(q) -> y`` (the arm's tip position, or q itself). Sour
 
 from __future__ import annotations
 
+import hashlib
 import json
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -125,8 +127,6 @@ def _blackbox_mx(meta: dict, field_sx: ca.Function) -> ca.Function | None:
     Jacobian stays a few matrix products, where the SX copy (every weight a scalar
     instruction) grows to millions of instructions for a 128 x 5 network. None when the run
     is gone or changed since the export (its checksum), or the two copies disagree."""
-    import hashlib
-
     members = [Path(p) for p in (meta.get("run") or {}).get("members") or []]
     if not members or not all((p / "model.eqx").is_file() for p in members):
         return None
@@ -199,8 +199,6 @@ def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
              compiler=None) -> PredictionModel:
     """A trained run (or an export directory) as a prediction model; a run is exported to
     ``export_dir`` first (:func:`softpinn.bridge.export.export_run`)."""
-    import time
-
     directory, what = resolve_run(path)
     if what == "run":
         _check_sizes(path, directory, output)

@@ -16,10 +16,10 @@ with u_{-1} the input applied at the last step. Two solvers:
   Jacobian per stage and RK4's sensitivities of that linearisation in closed form, and
   ``"lifted"`` about the last plan's states, without a rollout); the box-constrained QP is
   solved by a Cholesky solve when no bound is active, else by a dense QP solver shipped with
-  CasADi (``qpsol``: daqp, qpoases, osqp, ...). A
-  backtracking line search on the cost keeps each step a descent. The Functions are compiled
-  through the project's code cache (:mod:`softpinn.symbolic.codegen._codegen`), so a model compiles
-  once per machine; without a C compiler they run in CasADi's virtual machine.
+  CasADi (``qpsol``: daqp, qpoases, osqp, ...). A backtracking line search on the cost keeps
+  each step a descent. The Functions (:mod:`.gauss_newton`) are compiled through the project's
+  code cache (:func:`softpinn.symbolic.compile_functions`), so a model compiles once per
+  machine; without a C compiler they run in CasADi's virtual machine.
 * ``"ipopt"``: the same problem in multiple shooting with exact Hessians, solved by IPOPT
   (``casadi.nlpsol``) in CasADi's virtual machine, warm-started from the shifted previous
   solution and multipliers: the reference the SQP is checked against, tens of times slower on
@@ -37,14 +37,9 @@ import casadi as ca
 import numpy as np
 
 from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
+from softpinn.bridge.control.gauss_newton import sqp_functions
 from softpinn.bridge.control.models import PredictionModel
-from softpinn.bridge.control.rk4 import (
-    _field_functions,
-    _frozen_sensitivities,
-    _stage_functions,
-    _sym,
-    rk4_map,
-)
+from softpinn.bridge.control.rk4 import _sym, rk4_map
 from softpinn.errors import UserError
 from softpinn.symbolic import DEFAULT_FLAGS, compile_functions
 
@@ -93,14 +88,6 @@ def _substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int
     return int(min(max(config.substeps, need), 64))
 
 
-def _difference_matrix(m: int, N: int) -> np.ndarray:
-    """Δ with (Δ U)_k = u_k - u_{k-1} (k >= 1) and (Δ U)_0 = u_0 (u_prev enters separately)."""
-    D = np.eye(N * m)
-    for k in range(1, N):
-        D[k * m:(k + 1) * m, (k - 1) * m:k * m] = -np.eye(m)
-    return D
-
-
 class MPC:
     """One controller: ``solve(q, qd, reference, u_prev) -> (u, info)``.
 
@@ -142,96 +129,9 @@ class MPC:
     # ------------------------------------------------------------------ Gauss-Newton SQP
 
     def _build_sqp(self, compiler, cache):
-
         cfg, mod = self.config, self.model
-        n, nx, m, N, ny = mod.n, self.nx, self.m, self.N, self.ny
-        frozen = cfg.sensitivities in ("frozen", "lifted")
-        stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps, frozen=frozen)
-        xs = ca.SX.sym("x", nx)
-        ys = mod.output(xs[:n])
-        out = ca.Function("mpc_output", [xs], [ys, ca.jacobian(ys, xs)])
-
-        x0, U = ca.MX.sym("x0", nx), ca.MX.sym("U", m, N)
-        dx = ca.MX.sym("d", nx)  # the state disturbance added at every step (offset_free)
-        R, up = ca.MX.sym("R", ny, N), ca.MX.sym("u_prev", m)
-        sy = np.sqrt(cfg.weight_y)
-        D = _difference_matrix(m, N)
-        uref = np.tile(self._uref, N)
-        Uv = ca.vec(U)
-        e_prev = ca.vertcat(up, ca.MX(m * (N - 1), 1))
-        du = ca.mtimes(ca.DM(D), Uv) - e_prev
-        cost_u = 0.5 * cfg.weight_u * ca.sumsqr(Uv - uref) + 0.5 * cfg.weight_du * ca.sumsqr(du)
-        grad_u = cfg.weight_u * (Uv - uref) + cfg.weight_du * ca.mtimes(ca.DM(D.T), du)
-        hess_u = cfg.weight_u * np.eye(N * m) + cfg.weight_du * D.T @ D
-
-        def gn_outputs(stages):
-            """f, g = Jᵀ r + ..., H = Jᵀ J + ... from the predicted states x_{k+1} and each
-            stage's sensitivities (Ak, Bk): S = ∂x_{k+1}/∂(u_0 ... u_k), chained stage by
-            stage."""
-            S, res, rows = None, [], []
-            for k, (x, Ak, Bk) in enumerate(stages):
-                S = Bk if S is None else ca.horzcat(ca.mtimes(Ak, S), Bk)
-                y, Ck = out(x)
-                res.append(sy * (y - R[:, k]))
-                row = sy * ca.mtimes(Ck, S)
-                if k < N - 1:
-                    row = ca.horzcat(row, ca.MX(ny, (N - 1 - k) * m))
-                rows.append(row)
-            r, J = ca.vertcat(*res), ca.vertcat(*rows)
-            return [0.5 * ca.sumsqr(r) + cost_u, ca.mtimes(J.T, r) + grad_u,
-                    ca.mtimes(J.T, J) + hess_u]
-
-        def gauss_newton(name, stage):
-            """The Gauss-Newton Function of a rollout through ``stage``."""
-            x, stages = x0, []
-            for k in range(N):
-                x, Ak, Bk = stage(x, U[:, k])
-                x = x + dx
-                stages.append((x, Ak, Bk))
-            return ca.Function(name, [x0, U, R, up, dx], gn_outputs(stages),
-                               ["x0", "U", "R", "u_prev", "d"], ["f", "g", "H"])
-
-        gn = gauss_newton("mpc_gn", stage)
-        # the cost alone (line search), and the predicted outputs (for plots and checks)
-        x, res, ys_all, xs_all = x0, [], [], [x0]
-        for k in range(N):
-            x = roll(x, U[:, k]) + dx
-            y, _ = out(x)
-            ys_all.append(y)
-            xs_all.append(x)
-            res.append(sy * (y - R[:, k]))
-        fc = 0.5 * ca.sumsqr(ca.vertcat(*res)) + cost_u
-        cost = ca.Function("mpc_cost", [x0, U, R, up, dx], [fc, ca.horzcat(*xs_all)],
-                           ["x0", "U", "R", "u_prev", "d"], ["f", "X"])
-        predict = ca.Function("mpc_predict", [x0, U, dx], [ca.horzcat(*ys_all)],
-                              ["x0", "U", "d"], ["Y"])
-        u0 = ca.MX.sym("u0", m)
-        step = ca.Function("mpc_step", [x0, u0], [roll(x0, u0)], ["x0", "u0"], ["x1"])
-        fns = {"gn": gn, "cost": cost, "predict": predict, "step": step}
-        if frozen:  # the exact step, for an iteration the frozen one could not make
-            fns["gn_exact"] = gauss_newton("mpc_gn_exact",
-                                           _stage_functions(mod.field, cfg.dt, cfg.substeps)[0])
-        if cfg.sensitivities == "lifted":
-            # the Gauss-Newton step about the last plan's predicted states, shifted by one
-            # step: no rollout, the states corrected to first order for the new measurement
-            # (δ₀ = x0 − xb₀) and the change of the disturbance estimate (dd):
-            # x_{k+1} ≈ xb_{k+1} + δ_{k+1}, δ_{k+1} = A_k δ_k + dd
-            fj, _ = _field_functions(mod.field)
-            h = cfg.dt / cfg.substeps
-            Xb, dd = ca.MX.sym("Xb", nx, N), ca.MX.sym("dd", nx)
-            delta, stages = x0 - Xb[:, 0], []
-            d_base = dx - dd  # the disturbance the base states were predicted with
-            for k in range(N):
-                xa = Xb[:, k]
-                # the model's own step from xa (the last one rolled, as the base would have)
-                own = Xb[:, k + 1] - d_base if k < N - 1 else roll(xa, U[:, k])
-                xb = own + d_base
-                Ak, Bk = _frozen_sensitivities(fj, 0.5 * (xa + own), U[:, k], h, cfg.substeps)
-                delta = ca.mtimes(Ak, delta) + dd
-                stages.append((xb + delta, Ak, Bk))
-            fns["gn_lifted"] = ca.Function(
-                "mpc_gn_lifted", [x0, Xb, U, R, up, dx, dd], gn_outputs(stages),
-                ["x0", "Xb", "U", "R", "u_prev", "d", "dd"], ["f", "g", "H"])
+        m, N = self.m, self.N
+        fns = sqp_functions(mod, cfg, self._uref)
         if cfg.codegen:
             # an MX field's matrix products compile to loops that -O3 runs three times faster
             # (SX code: straight-line, the same speed at -O1, which compiles faster)

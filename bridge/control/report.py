@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
+
+from softpinn.files import atomic_write
 
 __all__ = ["write_report"]
 
@@ -132,7 +133,4 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
             if f.endswith(f"_{rname}.png"):
                 lines.append(f"![{Path(f).stem}]({f})")
     lines += ["", "Time series: `traces/<reference>.npz`; all numbers: `results.json`.", ""]
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text("\n".join(lines))
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, "\n".join(lines))

@@ -1,23 +1,24 @@
 """Data sets simulated in JAX, in the file format of ``softpinn simulate``.
 
-:func:`make_dataset` is :func:`softpinn.symbolic.simulation._datasets.make_dataset` with the integration
+:func:`make_dataset` is :func:`softpinn.symbolic.make_dataset` with the integration
 done by :func:`.simulate.simulate` (fixed-step RK4 on the translated exact model, all
 trajectories at once) instead of CasADi, passed in as its ``simulator``: the same plan, the
 same draws of initial states and signals (trajectory k from ``default_rng([seed, k])``), the
 same arrays and the same ``meta``, so every consumer takes it unchanged.
 ``meta["simulation"]["method"]`` and ``meta["compiled"]`` (``"c-kernel"``: the batched C kernels
-of :mod:`softpinn.symbolic.codegen._kernel`, the default on a CPU with a C compiler; ``"jax"``: XLA, on a
+of :mod:`softpinn.symbolic.codegen._kernel`, the default on a CPU with a C compiler;
+``"jax"``: XLA, on a
 GPU or without a compiler) say how it was made.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 from softpinn.bridge.exact.model import jax_model
 from softpinn.bridge.exact.simulate import choose_backend, simulate
+from softpinn.progress import ProgressFn
 from softpinn.symbolic import DatasetArrays, DatasetPlan, ModelSpec, package_version, plan_dataset
 from softpinn.symbolic import make_dataset as _make_dataset
 
@@ -30,12 +31,12 @@ def make_dataset(
     model: str | Path | ModelSpec | None = None,
     *,
     plan: DatasetPlan | None = None,
-    progress: Callable[[int], None] | None = None,
+    progress: ProgressFn | None = None,
     backend: str = "auto",
     **options,
 ) -> DatasetArrays:
     """Simulate a model's data set (Section III-B) with all trajectories at once; ``plan`` or
-    ``model`` with the keyword ``options`` of :func:`softpinn.symbolic.simulation._datasets.plan_dataset`
+    ``model`` with the keyword ``options`` of :func:`softpinn.symbolic.plan_dataset`
     (``integrator`` defaults to, and must be, ``"rk4"``); ``backend`` as in
     :func:`.simulate.simulate`."""
     backend = choose_backend(backend)

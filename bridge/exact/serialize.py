@@ -2,7 +2,8 @@
 
 :func:`program_data` writes a Program's SX instruction list as a JSON-ready dict that names
 every operation (``"ADD"``, ``"SIN"``, ... : CasADi's ``OP_*`` names without the prefix, not
-its version-dependent integer codes), so that :mod:`softpinn.learn._known_input` can replay it in JAX
+its version-dependent integer codes), so that :mod:`softpinn.learn._known_input` can replay
+it in JAX
 without CasADi (a run's known input matrix A(q), eq. 6, stored in its ``config.json``)::
 
     {"format": "softpinn-program/1", "name": "A",

@@ -1,18 +1,20 @@
 """Fixed-step RK4 simulation of the exact model in JAX: thousands of trajectories at once.
 
-The same integration as ``symbolic.simulation._simulate``'s ``rk4`` path (classical Runge-Kutta, step
+The same integration as ``symbolic.simulation._simulate``'s ``rk4`` path (classical
+Runge-Kutta, step
 ``config.step``, ``config.substeps`` steps per output sample, outputs on the grid
 t_k = k / rate, u(t) evaluated exactly inside the integrator from the same
-:class:`~softpinn.symbolic.simulation._signals.Signal` definitions: their CasADi ``u(t, p)`` is translated to
+:class:`~softpinn.symbolic.Signal` definitions: their CasADi ``u(t, p)`` is translated to
 JAX like the model), driven by the translated ``ode`` of eq. 4. Trajectories are ``vmap``-ped
 (the batch is the minor axis of every scalar operation, so XLA vectorises across trajectories),
 time steps run in ``lax.scan``; the four RK stages are a scan too, so the ODE appears once in the
-compiled program. Returns the :class:`~softpinn.symbolic.simulation._simulate.SimResult` of the CasADi path,
+compiled program. Returns the :class:`~softpinn.symbolic.SimResult` of the CasADi path,
 with the same checks: non-finite states and ill-conditioned mass matrices raise
 :class:`~softpinn.symbolic.simulation._simulate.SingularityError`.
 
 Two backends run the same arithmetic: ``"c"``, the batched C kernels of
-:mod:`softpinn.symbolic.codegen._kernel` (the ODE's SX instructions in a loop over trajectories that the
+:mod:`softpinn.symbolic.codegen._kernel` (the ODE's SX instructions in a loop over trajectories
+that the
 compiler vectorises, with the RK4 loop in the same C, trajectories split over
 ``config.threads`` threads), and ``"jax"`` (XLA). ``backend="auto"`` takes C on the CPU when a C
 compiler is found (task5: 0.4 µs per ODE evaluation against 2.4 µs in XLA, 5 s to compile
@@ -31,6 +33,7 @@ import numpy as np
 
 from softpinn.bridge.exact.model import ExactModel
 from softpinn.bridge.exact.translate import translate
+from softpinn.progress import Progress, ProgressFn
 from softpinn.symbolic import (
     KernelRK4,
     Signal,
@@ -140,7 +143,7 @@ def simulate(
     signals: Sequence[Signal],
     config: SimulationConfig,
     *,
-    progress: Callable[[int], None] | None = None,
+    progress: ProgressFn | None = None,
     backend: str = "auto",
 ) -> SimResult:
     """Integrate K trajectories from ``x0`` (K, 2n) under ``signals`` (K) with fixed-step RK4
@@ -173,6 +176,7 @@ def simulate(
     start = time.perf_counter()
     compile_s = 0.0
     built = None
+    finished = 0
     for idx in groups.values():
         p = np.stack([signals[i].params() for i in idx], axis=1).reshape(-1, len(idx))
         if backend == "c":
@@ -184,8 +188,9 @@ def simulate(
             run = rk4_program(model, signals[idx[0]], config)
             out = np.asarray(run(jnp.asarray(x0[idx].T), jnp.asarray(p)))  # (T, 2n, K_g)
             xs[idx] = out.transpose(2, 0, 1)
+        finished += len(idx)
         if progress is not None:
-            progress(len(idx))
+            progress(Progress(done=finished, total=K, unit="trajectory"))
     integrate_s = time.perf_counter() - start
     start = time.perf_counter()
     for k in range(K):

@@ -7,8 +7,8 @@ The output directory holds
   ``M_inv``, ``G``, ``D``, ``A``); load any of them with ``casadi.Function.load``;
 * ``model.c`` and ``model.h``: the same Functions as C (CasADi's code generator, one C function
   per name with the usual ``<name>_work``/``<name>_n_in``... companions), and ``model.so``, that C
-  compiled through the project's code cache (:func:`softpinn.symbolic.codegen._codegen.compile_functions`;
-  absent without a C compiler);
+  compiled through the project's code cache (:func:`softpinn.symbolic.compile_functions`; absent
+  without a C compiler);
 * ``model.json``: kind, sizes, state and coordinate names, units, the training data and
   configuration, the integrator of ``step``, a checksum of the run's files, the versions.
 """
@@ -25,6 +25,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from softpinn._version import __version__
 from softpinn.bridge.base import outputs
 from softpinn.bridge.export.dynamics import export_functions
 from softpinn.bridge.export.params import model_params
@@ -221,8 +222,6 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     n, m = first["n"], first["m"]
     top = loaded[0].info
     meta, q_range = _dataset_facts(top, run)
-    from softpinn import __version__
-
     result = ExportResult({
         "format": FORMAT,
         "version": FORMAT_VERSION,

@@ -5,7 +5,6 @@ against processed data (Fig. 52), the rate x preprocessing study and the bending
 from __future__ import annotations
 
 import math
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ from softpinn.bridge.figures.tables import (
     write_table,
 )
 from softpinn.bridge.report.walltime import WallTime
+from softpinn.files import atomic_write
 from softpinn.learn import load_dataset
 
 WHO = {"lagrangian": "Lagrangian network", "blackbox": "black box"}
@@ -393,10 +393,7 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
               + ", ".join(f"{k} {v:.1f}" for k, v in results["stage_seconds"].items()) + ".",
               ""]
     path = out / "report.md"
-    tmp = out / ".report.md.tmp"
-    tmp.write_text(wall.fill("\n".join(lines)), encoding="utf-8")
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, wall.fill("\n".join(lines)))
 
 
 def _differences(plan, prep: str) -> str:

@@ -10,39 +10,34 @@ another step size (Figs. 24-25) and, for Task 5, the error against the sampling 
 
 from __future__ import annotations
 
-import json
-import os
-import warnings
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from softpinn.bridge.analysis.excitation import markdown_lines
 from softpinn.bridge.analysis.modes import format_modes
-from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.figures.figsave import draft_figures, is_draft
 from softpinn.bridge.figures.paper import paper_task, results_table, table_iii_comparison
+from softpinn.bridge.figures.rollouts import NETWORK
 from softpinn.bridge.figures.tables import to_markdown, write_table
 from softpinn.bridge.figures.task import _rate_figure, _variant_figures
+from softpinn.bridge.report.task_analysis import analysis_section, fmt
 from softpinn.bridge.report.verdict import verdict
 from softpinn.bridge.report.walltime import WallTime
+from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.bridge.tasks.plan import data_step, own_substeps
-
-_NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
-_COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
+from softpinn.files import atomic_write
 
 
-def _model_size(kind: str, m: dict) -> str:
+def _model_size(kind: str, m: ModelBudget) -> str:
     """Model sizes written like Table III: (M)*2 + D + A for physics nets, W*D for the FNN."""
     if kind == "blackbox":
-        return f"{m['hidden'][0]}*{m['hidden'][1]}"
-    mass, d, a = m["mass"], m["damping"], m["input"]
-    damping = {"constant": " + D const", "none": ""}.get(m.get("damping_form"),
-                                                         f" + {d[0]}*{d[1]}")
-    actuator = "A known" if m.get("known_input") else f"{a[0]}*{a[1]}"
+        return f"{m.hidden[0]}*{m.hidden[1]}"
+    mass, d, a = m.mass, m.damping, m.input
+    damping = {"constant": " + D const", "none": ""}.get(m.damping_form, f" + {d[0]}*{d[1]}")
+    actuator = "A known" if m.known_input else f"{a[0]}*{a[1]}"
     text = f"({mass[0]}*{mass[1]})*2{damping} + {actuator}"
-    return text + (", from q̇" if m.get("momenta") == "velocity" else "")
+    return text + (", from q̇" if m.momenta == "velocity" else "")
 
 
 def _epochs(trained: dict) -> int | str:
@@ -133,11 +128,11 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
                 table = table_iii_comparison(
                     plan.task, ours, variant=variant,
                     caption=f"{plan.task}{title}: paper's Table III and ours "
-                            f"({_NETWORK[kind]} physics model)",
+                            f"({NETWORK[kind]} physics model)",
                 )
             else:  # a spec of the user's: Table III's columns, our rows
                 table = results_table(ours, caption=f"{plan.task}{title}: errors in Table "
-                                      f"III's columns ({_NETWORK[kind]} physics model)")
+                                      f"III's columns ({NETWORK[kind]} physics model)")
             stem = f"table_iii_{vname}_{kind}"
             write_table(table, out / "tables", stem)
             lines += [to_markdown(table), ""]
@@ -156,8 +151,8 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         for kind, entry in vres["models"].items():
             if "analyze" not in entry:
                 continue
-            lines += _analysis_section(plan, vname, kind, entry["analyze"], out,
-                                       excitation=first)
+            lines += analysis_section(plan, vname, kind, entry["analyze"], out,
+                                      excitation=first)
             first = False
     lines += [
         "## Settings",
@@ -167,10 +162,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
         "",
     ]
     path = out / "report.md"
-    tmp = out / ".report.md.tmp"
-    tmp.write_text(wall.fill("\n".join(lines)))
-    os.replace(tmp, path)
-    return path
+    return atomic_write(path, wall.fill("\n".join(lines)))
 
 
 def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
@@ -184,10 +176,6 @@ def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
     workers = min(jobs, len(names))
     if workers <= 1:
         return {v: _variant_figures(*a) for v, a in zip(names, args, strict=True)}
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-
     # spawn: this process may hold JAX's threads, which fork does not survive
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         done = [pool.submit(_variant_figures_drafted, is_draft(), *a) for a in args]
@@ -196,7 +184,6 @@ def _all_variant_figures(spec, plan, results: dict, fig_dir: Path, out: Path,
 
 def _variant_figures_drafted(draft: bool, *args) -> list[str]:
     """:func:`_variant_figures` in a worker process, drafts as in the caller's."""
-
     with draft_figures(draft):
         return _variant_figures(*args)
 
@@ -219,7 +206,7 @@ def _modes_lines(models: dict) -> list[str]:
         f"| true | {format_modes(first['true'])} | {first['true_max_real']:.3g} |",
     ]
     for kind, mo in rows:
-        lines.append(f"| {_NETWORK[kind]} | {format_modes(mo['learned'])} | "
+        lines.append(f"| {NETWORK[kind]} | {format_modes(mo['learned'])} | "
                      f"{mo['learned_max_real']:.3g} |")
     return lines + [""]
 
@@ -233,8 +220,8 @@ def _floor_lines(models: dict) -> list[str]:
             continue
         test = entry["predict"]["test_error"]["mean"]
         drift = fl.get("no_forces")
-        extra = "" if drift is None else f", no forces {_fmt(drift)}"
-        cells.append(f"{_NETWORK[kind]} {_fmt(fl['mean'])} (test loss {_fmt(test)}{extra})")
+        extra = "" if drift is None else f", no forces {fmt(drift)}"
+        cells.append(f"{NETWORK[kind]} {fmt(fl['mean'])} (test loss {fmt(test)}{extra})")
     if not cells:
         return []
     momentum = any((e.get("floor") or {}).get("state") == "momentum"
@@ -257,14 +244,13 @@ def _floor_lines(models: dict) -> list[str]:
 def _integration_sentence(plan) -> str:
     """How the models step over one data interval (the same for training and prediction)."""
     first = next(iter(plan.models.values()))
-    sub = int(first.get("substeps", 1))
-    hold = first.get("input_hold", "constant")
-    how = "held constant" if hold == "constant" else "interpolated linearly"
+    sub = int(first.substeps)
+    how = "held constant" if first.input_hold == "constant" else "interpolated linearly"
     text = (f"Every model is integrated by RK4 with {sub} step{'s' if sub > 1 else ''} per data "
             f"interval, inputs {how} between samples, in training and in prediction.")
-    accel = [_NETWORK[k] for k, m in plan.models.items() if m.get("loss") == "accel"]
+    accel = [NETWORK[k] for k, m in plan.models.items() if m.loss == "accel"]
     if accel:
-        labels = {m.get("accel_labels") for m in plan.models.values() if m.get("loss") == "accel"}
+        labels = {m.accel_labels for m in plan.models.values() if m.loss == "accel"}
         where = ("central differences of the recorded velocities" if labels == {"differences"}
                  else "the recorded accelerations")
         text += (f" The {' and '.join(accel)} network{'s' if len(accel) > 1 else ''} train"
@@ -272,8 +258,8 @@ def _integration_sentence(plan) -> str:
                  f"{where}; for {'them' if len(accel) > 1 else 'it'} the RK4 steps above serve "
                  "prediction only.")
     for k, m in plan.models.items():
-        if m.get("loss_weight", 1.0) != 1.0:
-            text += (f" The {_NETWORK[k]} network trains with λ = {m['loss_weight']:g} in eq. "
+        if m.loss_weight is not None and m.loss_weight != 1.0:
+            text += (f" The {NETWORK[k]} network trains with λ = {m.loss_weight:g} in eq. "
                      f"{9 if k == 'hamiltonian' else 8}; its errors below use λ = 1, as every "
                      "other model's do.")
     own = [f"the {v.name} data with {v.substeps}" for v in plan.variants if v.substeps]
@@ -281,197 +267,11 @@ def _integration_sentence(plan) -> str:
         text += (" Where the data step is longer than the true model's stable RK4 step, more "
                  "sub-steps: " + ", ".join(own) + ".")
     for k, m in plan.models.items():  # a network with a longest step of its own
-        if m.get("max_step") is None:
+        if m.max_step is None:
             continue
         steps = [f"{own_substeps(m, data_step(plan, v))} on the {v.name} data"
                  for v in plan.variants if k in v.models]
         if steps:
-            text += (f" The {_NETWORK[k]} network steps by its own longest step, "
-                     f"{m['max_step']:g} s: " + ", ".join(steps) + ".")
+            text += (f" The {NETWORK[k]} network steps by its own longest step, "
+                     f"{m.max_step:g} s: " + ", ".join(steps) + ".")
     return text
-
-
-def _rel(path: Path, out: Path) -> str:
-    return os.path.relpath(path, out)
-
-
-def _analysis_section(plan, vname: str, kind: str, an: dict, out: Path, *,
-                      excitation: bool = True) -> list[str]:
-
-    s = an["summary"]
-    where = "" if vname == "main" else f", {vname} data"
-    lines = [f"### {_NETWORK[kind]} model{where}", ""]
-    table_q = "the paper's tables" if paper_task(plan.task) else "the recipe's matrix_q"
-    where_q = (f"{an['points']} configurations sampled in the data's range" if not an["paper_q"]
-               else f"{an['points']} configurations ({an['paper_q']} from {table_q}, the rest "
-               "sampled in the data's range)")
-    lines += [
-        f"{where_q}. Relative residual ‖P X̂ − X‖/‖X‖ over all of them, "
-        "and what the total means (recovered ≤ 3 %, approximate ≤ 15 %, else not recovered):",
-        "",
-        "| transform | M or M⁻¹ | D | G | A | total | match | α | ‖P − αI‖/‖P‖ |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for name, r in s.items():
-        res = r["residual"]
-        mass = res.get("M", res.get("M_inv"))
-        cells = [_pct(mass), _pct(res.get("D")), _pct(res.get("G")), _pct(res.get("A")),
-                 _pct(r.get("residual_total")), match_word(r.get("residual_total")),
-                 _fmt(r.get("alpha")), _pct(r.get("distance_from_alpha_I"))]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    report = Path(an["report"])
-    lines += _paper_q_lines(report.parent / "analysis.json", kind, int(an["paper_q"]),
-                            an.get("seeds"))
-    lines += _force_lines(report.parent, out)
-    if excitation:
-        lines += _excitation_lines(report.parent / "analysis.json")
-    at = "at the paper's q" if paper_task(plan.task) else "per configuration"
-    lines += ["", f"Tables {at}, per transform: [{_rel(report, out)}]"
-                  f"({_rel(report, out)}).", ""]
-    scatter = report.parent / "scatter.png"
-    if scatter.is_file():
-        lines += [f"![true against transformed learned entries]({_rel(scatter, out)})", ""]
-    sweeps = report.parent / "sweeps.png"
-    if sweeps.is_file():
-        lines += ["Where they part: the entries along a sweep of each coordinate through the "
-                  "configurations' range (the others at their median), true solid, learned "
-                  "dashed.", "", f"![learned against true along sweeps of q]"
-                  f"({_rel(sweeps, out)})", ""]
-    pentries = report.parent / "P_entries.png"
-    if pentries.is_file():
-        lines += [f"The transforms P(q) themselves: [P_entries.png]({_rel(pentries, out)}).", ""]
-    return lines
-
-
-def _excitation_lines(path: Path) -> list[str]:
-    """How much of the inertia the training data show per direction of the true M
-    (:mod:`bridge.analysis.excitation`), from the analysis' samples."""
-    if not path.is_file():
-        return []
-    analysis = json.loads(path.read_text())
-    share = analysis.get("excitation")
-    if not share:
-        return []
-
-    table = markdown_lines(share, analysis.get("meta", {}).get("coordinates"), heading=None)
-    return ["", "**What the training data show of the inertia.** " + table[0], *table[1:-1]]
-
-
-def _force_lines(folder: Path, out: Path) -> list[str]:
-    """The first seed's force terms along its training data, and the accelerations they give
-    (:mod:`bridge.forces`)."""
-    path = folder / "analysis.json"
-    if not path.is_file():
-        return []
-    from softpinn.bridge.analysis.forces import markdown_lines
-
-    analysis = json.loads(path.read_text())
-    lines = []
-    for key, png in (("forces", "forces.png"), ("accelerations", "accelerations.png")):
-        comp = analysis.get(key)
-        if not comp:
-            continue
-        lines += [""] + markdown_lines(comp, heading=None)[:-1]
-        if (folder / png).is_file():
-            lines += ["", f"![{comp.get('frame', 'force')} terms, true against learned]"
-                          f"({_rel(folder / png, out)})"]
-    return lines
-
-
-def _paper_q_rows(path: Path, kind: str, k: int):
-    """Residual of each matrix at each of the paper's k configurations, and over the sampled
-    ones (all inside the data's range), for the headline transform: the direct comparison for
-    a Hamiltonian model, one scalar α for a Lagrangian one (Tables V-VII). Returns the
-    transform's name, its matrices, the row labels, the number of sampled q and one row of
-    residuals per label; None where there is no such analysis."""
-    if not path.is_file():
-        return None
-    a = json.loads(path.read_text())
-    name = "direct" if kind == "hamiltonian" else "alpha"
-    tr = a["transforms"].get(name)
-    if tr is None or not tr.get("residuals"):
-        return None
-    blocks = list(tr["residuals"])
-    q = np.asarray(a["q"], float)
-    labels, rows = [], []
-    for i in range(min(k, len(q))):
-        labels.append("[" + ", ".join(f"{v:.4g}" for v in q[i]) + "]")
-        rows.append([_num(tr["residuals"][b][i]) for b in blocks])
-    row = []
-    for b in blocks:  # ‖P X̂ − X‖/‖X‖ stacked over the sampled q, from the per-q residuals
-        r = np.array([_num(v) for v in tr["residuals"][b][k:]], float)
-        norm = np.linalg.norm(np.asarray(a["true"][b], float)[k:].reshape(len(q) - k, -1),
-                              axis=1)
-        ok = np.isfinite(r)  # a residual is undefined (None) where the true matrix is 0
-        total = np.sqrt(np.sum((r[ok] * norm[ok]) ** 2) / max(np.sum(norm[ok] ** 2), 1e-300))
-        row.append(float(total) if ok.any() else np.nan)
-    labels.append(f"sampled ({len(q) - k})")
-    rows.append(row)
-    return {"name": name, "blocks": blocks, "labels": labels, "sampled": len(q) - k,
-            "rows": np.asarray(rows, float)}
-
-
-def _num(x) -> float:
-    return np.nan if x is None else float(x)
-
-
-def _paper_q_lines(path: Path, kind: str, k: int, seeds: list[dict] | None = None) -> list[str]:
-    """The table of :func:`_paper_q_rows` for the first seed; with several seeds, a second one
-    of mean ± std over the seeds and the largest."""
-    got = _paper_q_rows(path, kind, k)
-    if got is None:
-        return []
-    blocks, labels, rows = got["blocks"], got["labels"], got["rows"]
-    first = f"the paper's {k} configurations, then " if k else ""
-    head = ["| q | " + " | ".join(blocks) + " |", "|---|" + "---|" * len(blocks)]
-    per_seed = [_paper_q_rows(Path(s["analysis"]), kind, k) for s in seeds or []]
-    per_seed = [g["rows"] for g in per_seed if g is not None and g["rows"].shape == rows.shape]
-    which = " (first seed)" if len(per_seed) > 1 else ""
-    lines = ["", f"Relative residual per configuration{which}, transform `{got['name']}`: "
-             f"{first}all {got['sampled']} sampled ones together:", "", *head]
-    lines += [f"| {lab} | " + " | ".join(_pct(v) for v in row) + " |"
-              for lab, row in zip(labels, rows, strict=True)]
-    if len(per_seed) > 1:
-        stack = np.stack(per_seed)
-        with warnings.catch_warnings():  # a residual undefined for every seed stays NaN
-            warnings.simplefilter("ignore", RuntimeWarning)
-            mean, std, top = np.nanmean(stack, 0), np.nanstd(stack, 0), np.nanmax(stack, 0)
-        lines += ["", f"The same over all {len(per_seed)} seeds: mean ± std (largest).", "",
-                  *head]
-        for lab, m, s_, t in zip(labels, mean, std, top, strict=True):
-            cells = ["–" if not np.isfinite(a) else f"{100 * a:.2f} ± {100 * b:.2f} % "
-                     f"({100 * c:.2f} %)" for a, b, c in zip(m, s_, t, strict=True)]
-            lines.append(f"| {lab} | " + " | ".join(cells) + " |")
-    return lines
-
-
-def _pct(x) -> str:
-    return "–" if x is None or not np.isfinite(x) else f"{100 * x:.2f} %"
-
-
-def _fmt(x) -> str:
-    if x is None:
-        return "–"
-    if isinstance(x, (int, float)) and np.isfinite(x):
-        return f"{x:.3g}"
-    return str(x)
-
-
-# ----------------------------------------------------------------------------------- figures
-
-
-def show_report(out_dir: str | Path) -> None:
-    """Show a task run's report in a notebook: the Markdown (tables) and every figure."""
-    import re
-
-    from IPython.display import Image, Markdown, display
-
-    out = Path(out_dir)
-    text = (out / "report.md").read_text()
-    parts = re.split(r"!\[([^\]]*)\]\(([^)]+)\)", text)
-    # re.split with two groups gives [text, alt, path, text, alt, path, ..., text]
-    for i in range(0, len(parts), 3):
-        if parts[i].strip():
-            display(Markdown(parts[i]))
-        if i + 2 < len(parts):
-            display(Image(filename=str(out / parts[i + 2])))

@@ -1,7 +1,8 @@
 """What a sweep writes on top of its trials' run directories: ``results.csv``, ``results.json``,
 ``results.md`` (every trial: settings, best test loss, epochs run, stopped early or not,
 seconds), ``sweep.png`` (the best test loss against each swept setting) and the link ``best``
-to the best trial's folder. No Ray here: the rows are plain dicts."""
+to the best trial's folder (:func:`write_results`, which returns the :class:`SweepResult`).
+No Ray here: the rows are plain dicts (:mod:`.rows`)."""
 
 from __future__ import annotations
 
@@ -9,17 +10,78 @@ import csv
 import io
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from softpinn.bridge.base import outputs
+from softpinn.bridge.sweep.config import SweepConfig
+from softpinn.bridge.sweep.rows import trial_row
 from softpinn.bridge.sweep.space import Random, dashed, format_value
-from softpinn.learn import atomic_write_bytes, atomic_write_json, atomic_write_text
+from softpinn.learn import (
+    TrainConfig,
+    atomic_write_bytes,
+    atomic_write_json,
+    atomic_write_text,
+    dataset_info,
+)
 from softpinn.learn.plots import SOFTWARE
 
 FORMAT = "softpinn-sweep"
 COLUMNS = ("trial", "seed", "best_test_loss", "epochs_run", "epochs", "stopped_early", "status",
            "seconds", "wall_seconds", "path")
+
+
+@dataclass
+class SweepResult:
+    """What :func:`~softpinn.bridge.sweep.sweep` returns: the output folder, one row per trial
+    (best first) and the best row (None if no trial reached a finite loss)."""
+
+    out: Path
+    rows: list[dict]
+    best: dict | None
+
+    @property
+    def best_dir(self) -> Path | None:
+        return None if self.best is None else self.out / self.best["path"]
+
+
+def write_results(out: Path, trials, grid, finished, data, base_config: TrainConfig,
+                  space: dict, config: SweepConfig) -> SweepResult:
+    """Rank the trials (``grid``: trial name -> ``ray.tune.Result``; ``finished``: the names of
+    those Tune finished) and write every results file into ``out``."""
+    root = out.resolve()
+    rows = rank([trial_row(t, grid.get(t.name), t.name in finished, root, config.scheduler)
+                 for t in trials])
+    ok = [r for r in rows if r["best_test_loss"] is not None]
+    best = ok[0] if ok else None
+    names = list(space)
+    info = {
+        "data": dataset_info(data),
+        "model": base_config.model.kind,
+        "base_config": base_config.to_dict(),
+        "space": {k: (v.describe() if isinstance(v, Random) else v) for k, v in space.items()},
+        "samples": config.samples,
+        "seeds": config.seeds,
+        "scheduler": config.scheduler,
+        "metric": config.metric,
+        "address": config.address,
+        "trials": len(trials),
+        "best": None if best is None else {
+            "trial": best["trial"], "path": best["path"], "dir": str(root / best["path"]),
+            "link": "best", "best_test_loss": best["best_test_loss"],
+            "settings": best["settings"], "seed": best["seed"]},
+    }
+    written = [
+        write_csv(out / "results.csv", rows, names),
+        write_json(out / "results.json", rows, info),
+        write_markdown(out / "results.md", rows, names, info),
+        plot(out / "sweep.png", rows, space, config.metric.replace("_", " ")),
+    ]
+    link_best(out, best)
+    outputs.record(out, [*written, *outputs.written_files(out / "tune")])
+    return SweepResult(out=out, rows=rows, best=best)
 
 
 def _loss(row) -> float:
@@ -146,6 +208,7 @@ def plot(path: Path, rows: list[dict], space: dict, metric_label: str) -> Path:
     """One panel per swept setting (or per seed when only seeds vary): every trial's best test
     loss (log scale) against the setting's value (log scale too, but for a uniform or int range,
     a seed, values <= 0 and named choices); stopped trials hollow, the best one a star."""
+    # matplotlib only when a sweep draws (``import softpinn.bridge.sweep`` stays light)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 

@@ -1,7 +1,7 @@
 """What a sweep tries: the settings it varies (a grid of values, or random draws from a range)
-and the list of trials they make, each a :class:`learn._config.TrainConfig` checked up front.
+and the list of trials they make, each a :class:`softpinn.learn.TrainConfig` checked up front.
 
-A setting is a field of :class:`learn._config.TrainConfig` (``TrainConfig.settings()``), spelled
+A setting is a field of :class:`softpinn.learn.TrainConfig` (``TrainConfig.settings()``), spelled
 with ``_`` or ``-``; its values are read with the field's type. Random ranges are ``log:LOW:HIGH``
 (log-uniform), ``uniform:LOW:HIGH``, ``int:LOW:HIGH`` and ``logint:LOW:HIGH`` (integers, both ends
 included) and ``choice:A,B,...``. No Ray here: the trials are drawn before Ray is started, with
@@ -22,7 +22,6 @@ from typing import Any
 import numpy as np
 
 from softpinn.errors import UserError
-from softpinn.errors import UserError as LearnError
 from softpinn.learn import TrainConfig
 
 #: Kinds of random ranges: ``KIND:LOW:HIGH`` (``choice:A,B,...``).
@@ -271,7 +270,7 @@ def make_trials(base: TrainConfig, space: dict, *, samples: int = 1, seeds: int 
                 seed = settings.get("seed", base.seed + j)
                 try:
                     config = dataclasses.replace(base, **{**settings, "seed": seed})
-                except (UserError, LearnError) as exc:
+                except UserError as exc:
                     values = ", ".join(f"{dashed(k)}={format_value(v)}"
                                        for k, v in settings.items())
                     raise UserError(f"trial {values}: {exc}") from None

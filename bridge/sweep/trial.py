@@ -1,9 +1,9 @@
 """One trial of a sweep as a Ray Tune :class:`ray.tune.Trainable`: a normal
-:func:`softpinn.learn._train.train` run writing its own run directory, reporting its test loss
+:func:`softpinn.learn.train` run writing its own run directory, reporting its test loss
 to Tune at every evaluation so that a scheduler (ASHA) can stop it early.
 
-This module imports Ray at the top: only :func:`softpinn.bridge.sweep.sweep` imports it, after
-checking that Ray is installed.
+This module imports Ray at the top: only :mod:`.tuner` imports it, which only
+:func:`softpinn.bridge.sweep.sweep` imports, after checking that Ray is installed.
 
 ``train`` runs in a thread of the trial's actor; its ``progress`` callback hands each evaluation
 to :meth:`Trial.step` and waits until Tune asks for the next one. When Tune stops the trial
@@ -23,18 +23,20 @@ from pathlib import Path
 
 from ray import tune
 
-from softpinn.learn import NonFiniteStart, TrainConfig, TrainingDiverged, train
+from softpinn.errors import UserError
+from softpinn.learn import NonFiniteStart, TrainConfig, TrainingDiverged, read_json, train
+from softpinn.progress import TrainProgress
 
 
 class Trial(tune.Trainable):
     """``config``: ``{"trial": NAME}``; ``specs``: NAME -> ``{"name", "config"
-    (TrainConfig.to_dict()), "dir", "force", "gpus"}``; ``data``: the :class:`learn._data.Dataset`
-    (``data`` and ``specs`` go once through Ray's object store, so the nodes of a cluster need
-    not see the file).
+    (TrainConfig.to_dict()), "dir", "force", "gpus"}``; ``data``: the
+    :class:`softpinn.learn.Dataset` (``data`` and ``specs`` go once through Ray's object store,
+    so the nodes of a cluster need not see the file).
 
     An actor runs one trial after another (:meth:`reset_config`): the compiled training
     programs stay in its process, so trials that differ only in settings that are not compiled
-    in (lr, seed, patience, ...; see :class:`learn._programs.ProgramCache`) compile once."""
+    in (lr, seed, patience, ...; see :class:`softpinn.learn.ProgramCache`) compile once."""
 
     def setup(self, config, data=None, specs=None):
         self._data = data
@@ -61,16 +63,16 @@ class Trial(tune.Trainable):
 
     # ------------------------------------------------------------------ the training thread
 
-    def _progress(self, info: dict) -> None:
-        if info["test_loss"] is None or info["epoch"] == 0 or self._detached.is_set():
+    def _progress(self, event: TrainProgress) -> None:
+        if event.test_loss is None or event.epoch == 0 or self._detached.is_set():
             return  # only evaluations after training started are reported
-        self._last_epoch = info["epoch"]
+        self._last_epoch = event.epoch
         self._results.put(("report", {
-            "epoch": int(info["epoch"]),
-            "phase": info["phase"],
-            "test_loss": float(min(info["test_loss"])),
-            "train_loss": float(min(info["train_loss"])),
-            "best_test_loss": float(min(info["best_test_loss"])),
+            "epoch": int(event.epoch),
+            "phase": event.phase,
+            "test_loss": float(min(event.test_loss)),
+            "train_loss": float(min(event.train_loss)),
+            "best_test_loss": float(min(event.best_test_loss)),
             "status": "running",
         }))
         self._go.acquire()
@@ -89,8 +91,6 @@ class Trial(tune.Trainable):
             except NonFiniteStart:
                 raise
             except TrainingDiverged:
-                from softpinn.learn import read_json
-
                 metrics = read_json(Path(spec["dir"]) / "metrics.json")
                 status = "diverged"
             self._results.put(("done", self._final(metrics, status)))
@@ -124,7 +124,7 @@ class Trial(tune.Trainable):
         # and no epoch, so that ASHA does not record the trial at a rung
         none = {"best_test_loss": float("nan"), "test_loss": float("nan"), "done": True}
         if kind == "error":
-            if getattr(type(payload), "softpinn_user_error", False):  # one line, no traceback
+            if isinstance(payload, UserError):  # one line, no traceback
                 return {**none, "status": "error", "error": " ".join(str(payload).split())}
             raise payload
         if kind == "stopped":  # interrupted without Tune asking: report what there is

@@ -1,25 +1,18 @@
-"""The paper's tasks end to end (``softpinn reproduce``): a recipe becomes a plan
-(:mod:`.plan`), the plan runs as resumable stages (:mod:`.stages`), and :func:`reproduce`
-(:mod:`.pipeline`) ties them together and writes the report."""
+"""The paper's tasks as resumable stages: a recipe becomes a plan (:mod:`.plan`, each network's
+budget a :class:`.budget.ModelBudget`), the plan runs as stages (:mod:`.stages`,
+:mod:`.measure_stages`) tied together by :func:`.pipeline.run_task`; the paper's experiment is
+:mod:`.experiment`. ``softpinn.bridge.app``'s ``reproduce`` runs them and writes the report."""
 
-from softpinn.bridge.tasks.pipeline import (
-    ReproduceResult,
-    machine_description,
-    notebook_run,
-    reproduce,
-)
+from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.bridge.tasks.plan import TASKS, Plan, ReproduceConfig, Variant, make_plan
 from softpinn.bridge.tasks.stages import variant_model
 
 __all__ = [
     "TASKS",
+    "ModelBudget",
     "Plan",
     "ReproduceConfig",
-    "ReproduceResult",
     "Variant",
-    "machine_description",
     "make_plan",
-    "notebook_run",
-    "reproduce",
     "variant_model",
 ]

@@ -23,7 +23,8 @@ stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the pa
 6. **bending**: the Lagrangian network's M, D, G, A in the observable bending block (dx, dy at
    dL = 0) against the true ones, through the transforms of :mod:`bridge.analysis`;
 7. **report**: ``report.md`` with the Table IV analogue beside the paper's figures, the rate x
-   preprocessing table, the matrices, and the figures (:mod:`bridge.report.experiment`).
+   preprocessing table, the matrices, and the figures (:mod:`bridge.report.experiment`, written
+   by ``softpinn.bridge.app``'s ``reproduce`` after :func:`run_experiment` ran steps 1-6).
 
 Every step is a stage (:class:`.stages.Stages`): rerun with the same settings, finished stages are
 skipped. ``quick`` shrinks the data, the rates, the networks and the budgets to run in a minute or
@@ -36,7 +37,7 @@ import dataclasses
 import json
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -199,14 +200,24 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
 # ---------------------------------------------------------------------------------- pipeline
 
 
+@dataclass(frozen=True)
+class ExperimentRun:
+    """The experiment's stages, finished (:func:`run_experiment`): its spec and plan, the output
+    folder, every result and the run's time so far [s]."""
+
+    config: ReproduceConfig
+    spec: Any
+    plan: ExperimentPlan
+    out: Path
+    results: dict = field(repr=False)
+    seconds: float
+
+
 def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
-                   progress=None, force: bool = False, machine: str = ""):
-    """Run the experiment end to end into ``out_dir`` (see the module docstring); returns
-    ``(out, report, plan, results, seconds)``. ``machine`` describes the computer in the
-    report."""
-
-    from softpinn.bridge.report.experiment import write_experiment_report
-
+                   progress=None, force: bool = False) -> ExperimentRun:
+    """Run the experiment's stages into ``out_dir`` (see the module docstring, steps 1-6). The
+    report (:mod:`bridge.report.experiment`) and ``results.json`` are the caller's
+    (``softpinn.bridge.app``'s ``reproduce``)."""
     out = outputs.claim(out_dir, "reproduce", force=force)
     t_start = time.perf_counter()
     spec = load_spec(config.task)
@@ -254,16 +265,7 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
         time.perf_counter() - t_start - sum(v for k, v in stages.seconds.items()
                                             if k in stages.ran))
     results["stage_seconds"] = dict(stages.seconds)
-    t_report = time.perf_counter()
-    report = write_experiment_report(spec, plan, results, out, seconds=seconds, machine=machine,
-                                     jobs=config.jobs)
-    seconds += time.perf_counter() - t_report  # the report's figures are part of the run
-    write_json(out / "results.json", {"task": "experiment", "quick": plan.quick,
-                                      "seconds": seconds, "jobs": config.jobs, "machine": machine,
-                                      "results": results})
-    outputs.record(out, outputs.written_files(out))
-    log(f"report: {report}")
-    return out, report, plan, results, seconds
+    return ExperimentRun(config, spec, plan, out, results, seconds)
 
 
 def _record_settings(plan: ExperimentPlan, rate: float) -> dict:

@@ -4,11 +4,13 @@ takes the run's :class:`.experiment.ExperimentPlan` and writes into its own fold
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 
 from softpinn.bridge.analysis import learned_matrices, true_matrices
@@ -84,8 +86,6 @@ def bending_only(data, spec):
     """The bending part (dx, dy) of an imported data set: what the IMU observes. The stretch
     dL, set to 0 by the import because orientation cannot see it, is left out, so the networks
     learn the bending model (p keeps M_bb q̇_b, as q̇_L = 0)."""
-    import dataclasses
-
     keep = slice(0, 2)
     names = list(spec.coordinate_names[:2])
     meta = {**data.meta, "n": 2, "coordinates": names,
@@ -190,9 +190,6 @@ def _stat(values) -> dict[str, Any]:
 
 def stage_predict(plan, kind: str, rate: float, imported: dict, recorded: dict,
                   trained: dict, folder: Path) -> dict:
-    import jax.numpy as jnp
-
-
     data = load_dataset(imported["path"])
     test = [int(i) for i in imported["test"]]
     truth_file = np.load(recorded["truth"])

@@ -16,15 +16,21 @@ run does; a second one stops the workers at once.
 
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
+import os
 import queue as queue_mod
+import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import jax
+
 from softpinn.bridge.figures.figsave import draft_figures
 from softpinn.bridge.tasks.plan import ReproduceConfig
 from softpinn.bridge.tasks.stages import Stages
+from softpinn.progress import Progress, ProgressFn, TrainProgress
 
 __all__ = ["Probe", "run_in_worker", "run_models", "suggest_jobs", "unfinished"]
 
@@ -51,8 +57,6 @@ class WorkerInterrupted(Exception):
 
 def suggest_jobs(models: int, log: Callable[[str], None]) -> None:
     """On a machine with cores to spare, say once that ``--jobs`` would use them."""
-    import os
-
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     if models > 1 and (cores or 1) > 1:
         log(f"[models] {models} models, one at a time: --jobs {min(models, cores)} would train "
@@ -74,8 +78,6 @@ _QUEUE = None  # the worker's end of the queue (set by _start)
 
 
 def _start(queue) -> None:
-    import signal
-
     global _QUEUE
     _QUEUE = queue
     # Ctrl-C reaches every process of the terminal: a worker heeds it only while it trains
@@ -89,14 +91,12 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
     """In a worker: ``body(stages, progress)`` runs one model's chain in float64, with the run's
     figure mode, its log lines and training progress sent to the caller under ``key``; returns
     the names of the stages it ran."""
-    import jax
-
     jax.config.update("jax_enable_x64", True)
 
     stages = Stages(Path(out), lambda line: _QUEUE.put(("log", key, line)))
 
-    def progress(info: dict) -> None:
-        _QUEUE.put(("progress", key, info))
+    def progress(event: TrainProgress) -> None:
+        _QUEUE.put(("progress", key, event))
 
     try:
         with draft_figures(config.quick):
@@ -110,12 +110,13 @@ def run_in_worker(config: ReproduceConfig, key: str, out: str,
 
 
 def run_models(work: list, *, jobs: int, log: Callable[[str], None],
-               progress: Callable[[dict], None] | None, after: list | None = None) -> set[str]:
+               progress: ProgressFn | None, after: list | None = None) -> set[str]:
     """Run ``work`` (``[(key, function, args, epochs)]``: a module-level ``function(*args)``
     runs one model's chain and returns the names of the stages it ran), ``jobs`` at a time;
-    returns the names of every stage the workers ran. ``progress`` gets ``{"phase": "models",
-    "models": {key: epochs}}`` first, then each worker's training events with ``"model": key``
-    added, and ``{"phase": "model-done", "model": key}`` when a model's chain has finished.
+    returns the names of every stage the workers ran. ``progress`` gets a
+    :class:`~softpinn.progress.Progress` of unit "model" and phase "start" first, then each
+    worker's training events with ``model`` set to its key, and one of phase "done" (``label``:
+    the key) when a model's chain has finished.
     ``after``: ``[(key, needs, function, args)]``, work that waits for the models ``needs``
     (keys of ``work``; those not in it count as finished) and then takes the next free
     worker, e.g. a data set's report figures once its models are done (drawn while the other
@@ -127,7 +128,7 @@ def run_models(work: list, *, jobs: int, log: Callable[[str], None],
     log(f"[models] {len(work)} model(s) to train and analyse"
         + (f", {len(after)} data set(s)' figures to draw" if after else "") + f", {n} at a time")
     if progress is not None:
-        progress({"phase": "models", "models": {key: epochs for key, _, _, epochs in work}})
+        progress(Progress(done=0, total=len(work), unit="model", phase="start"))
     ctx = multiprocessing.get_context("spawn")
     queue = ctx.Queue()
     pool = ctx.Pool(n, initializer=_start, initargs=(queue,))
@@ -141,7 +142,7 @@ def run_models(work: list, *, jobs: int, log: Callable[[str], None],
             if what == "log":
                 log(payload)
             elif progress is not None:
-                progress({**payload, "model": key})
+                progress(dataclasses.replace(payload, model=key))
 
     ran: set[str] = set()
     models = {key for key, _, _, _ in work}
@@ -164,7 +165,8 @@ def run_models(work: list, *, jobs: int, log: Callable[[str], None],
                     raise KeyboardInterrupt from None
                 done.add(key)
                 if progress is not None and key in models:
-                    progress({"phase": "model-done", "model": key})
+                    progress(Progress(done=len(done & models), total=len(models), unit="model",
+                                      label=key, phase="done"))
                 release()
             time.sleep(0.1)
         drain()

@@ -15,6 +15,10 @@ One call runs the whole study of a task (Section III-B, Section IV, Appendix B):
    summaries and the figures (each data set's figures a stage of their own, ``draw/<variant>``:
    with ``--jobs`` drawn by a free worker as soon as that data set's models are done).
 
+:func:`run_task` runs steps 1-4 and :func:`draw_figures` the figure stages; the report itself
+(:mod:`bridge.report.task`) and ``results.json`` are written by ``softpinn.bridge.app``'s
+``reproduce``, which dispatches a task to this pipeline.
+
 Every stage writes its results under ``OUT/<stage>/`` and a ``done.json`` holding the settings
 that made them; a second call with the same settings skips finished stages, so an interrupted
 run loses at most the stage it was in (training itself resumes from its last checkpoint).
@@ -29,11 +33,9 @@ sizes and data, with our own, shorter training budgets (the recipe's ``[training
 tables, :mod:`symbolic.spec._recipe`).
 """
 
-
 from __future__ import annotations
 
-import os
-import platform
+import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -41,80 +43,47 @@ from pathlib import Path
 from typing import Any
 
 from softpinn.bridge.base import outputs
-from softpinn.bridge.figures.figsave import draft_figures, is_draft
+from softpinn.bridge.figures.figsave import is_draft
 from softpinn.bridge.figures.task import _variant_figures
 from softpinn.bridge.tasks import parallel
-from softpinn.bridge.tasks.plan import (
-    CHALLENGES,
-    EXPERIMENTS,
-    Plan,
-    ReproduceConfig,
-    make_plan,
-    task_spec,
-)
-from softpinn.bridge.tasks.stages import (
-    Stages,
-    integration,
+from softpinn.bridge.tasks.measure_stages import (
     stage_analyze,
-    stage_data,
     stage_floor,
     stage_modes,
     stage_predict,
+)
+from softpinn.bridge.tasks.plan import Plan, ReproduceConfig, make_plan, task_spec
+from softpinn.bridge.tasks.stages import (
+    Stages,
+    stage_data,
     stage_train,
     variant_model,
     write_json,
 )
+from softpinn.progress import ProgressFn
 
 
-@dataclass
-class ReproduceResult:
-    """What :func:`reproduce` returns: paths and every figure it measured."""
+@dataclass(frozen=True)
+class TaskRun:
+    """A task run's stages, finished (:func:`run_task`): its spec and plan, the output folder and
+    the stages' runner (the report's figure stages run on it), every result, and the run's time
+    so far [s] (this call's, plus what the stages it reused took when they ran)."""
 
     config: ReproduceConfig
-    out_dir: Path
-    report: Path
-    plan: Plan | None  # None for the challenges (studies with plans of their own)
+    spec: Any
+    plan: Plan
+    out: Path
+    stages: Stages = field(repr=False)
     results: dict = field(repr=False)
-    seconds: float = 0.0
+    seconds: float
 
 
-def reproduce(
-    config: ReproduceConfig | str,
-    out_dir: str | Path,
-    *,
-    log: Callable[[str], None] | None = None,
-    progress: Callable[[dict], None] | None = None,
-    force: bool = False,
-) -> ReproduceResult:
-    """Run a paper task end to end into ``out_dir`` (see the module docstring). ``out_dir``
-    may be new, empty or an earlier reproduce's (finished stages are reused); another non-empty
-    folder is refused unless ``force`` (:mod:`bridge.base.outputs`: nothing of the user's is
-    overwritten or removed). A quick run's figures are drafts (:mod:`bridge.figures.figsave`)."""
-    if isinstance(config, str):
-        config = ReproduceConfig(task=config)
-
-    with draft_figures(config.quick):  # a quick run's figures are drafts (no print copies)
-        return _reproduce(config, out_dir, log=log, progress=progress, force=force)
-
-
-def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> ReproduceResult:
-    import jax
-
-    jax.config.update("jax_enable_x64", True)
-    log = log or (lambda s: None)
-    if config.task in CHALLENGES:  # the open challenges: studies of their own
-        from softpinn.bridge.challenges.pipeline import run_challenges
-
-        out, report, results, seconds = run_challenges(
-            out_dir, quick=config.quick, log=log, progress=progress, force=force,
-            machine=machine_description())
-        return ReproduceResult(config, out, report, None, results, seconds)
-    if config.task in EXPERIMENTS:  # the paper's experiment: its own pipeline
-        from softpinn.bridge.tasks.experiment import run_experiment
-
-        run = run_experiment(config, out_dir, log=log, progress=progress, force=force,
-                             machine=machine_description())
-        return ReproduceResult(config, *run)
+def run_task(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
+             progress: ProgressFn | None = None, force: bool = False) -> TaskRun:
+    """Run a task's stages into ``out_dir`` (see the module docstring): the data, then every
+    model's train, predict, floor, modes and analyze stages (with ``config.jobs`` > 1 in worker
+    processes first). Writes ``plan.json`` and the stages' folders; the figures, the report and
+    ``results.json`` are the caller's (:func:`draw_figures`, :mod:`bridge.report.task`)."""
     spec = task_spec(config.task, log)  # a bad spec file is refused before --out is made
     out = outputs.claim(out_dir, "reproduce", force=force)
     t_start = time.perf_counter()
@@ -152,21 +121,16 @@ def _reproduce(config: ReproduceConfig, out_dir, *, log, progress, force) -> Rep
         time.perf_counter() - t_start - sum(
             v for k, v in stages.seconds.items() if k in stages.ran))
     results["stage_seconds"] = {k: v + credit.get(k, 0.0) for k, v in stages.seconds.items()}
-    from softpinn.bridge.report import write_task_report
+    return TaskRun(config, spec, plan, out, stages, results, seconds)
 
-    t_report = time.perf_counter()
-    figures = {v.name: figure_stage(spec, plan, stages, v.name, results["variants"][v.name][
-        "models"], i == 0) for i, v in enumerate(plan.variants)}
-    report = write_task_report(spec, plan, results, out, seconds=seconds,
-                               machine=machine_description(), jobs=config.jobs, figures=figures)
-    seconds += time.perf_counter() - t_report  # the report's figures are part of the run
-    write_json(out / "results.json", {
-        "task": plan.task, "quick": plan.quick, "seconds": seconds, "jobs": config.jobs,
-        "machine": machine_description(), "results": results,
-    })
-    outputs.record(out, outputs.written_files(out))
-    log(f"report: {report}")
-    return ReproduceResult(config, out, report, plan, results, seconds)
+
+def draw_figures(run: TaskRun) -> dict[str, list[str]]:
+    """Every data set's figure stage (:func:`figure_stage`, ``draw/<variant>``) of a finished
+    run: the report lines that show each data set's figures, by variant."""
+    plan = run.plan
+    return {v.name: figure_stage(run.spec, plan, run.stages, v.name,
+                                 run.results["variants"][v.name]["models"], i == 0)
+            for i, v in enumerate(plan.variants)}
 
 
 def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dict,
@@ -178,7 +142,7 @@ def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dic
     mplan = variant_model(plan, variant, kind, files)
     # the data settings too: a data set simulated again under the same file name must not
     # leave models trained on the old one
-    settings = {"model": mplan, "files": files, "data": data_settings,
+    settings = {"model": mplan.to_dict(), "files": files, "data": data_settings,
                 "batch": plan.batch_size, "seeds": plan.seeds, "float32": plan.float32,
                 "samples": plan.physics_samples if kind != "blackbox" else None}
     name = f"train/{variant.name}/{kind}"
@@ -192,7 +156,7 @@ def model_stages(spec, plan: Plan, stages: Stages, variant, kind: str, data: dic
                     lambda d: stage_predict(plan, kind, files, tr, d))
     fl = stages.run(f"floor/{variant.name}/{kind}",
                     {"files": files, "data": data_settings, "no_forces": True,
-                     "integration": integration(mplan),
+                     "integration": mplan.integration(),
                      "state": "momentum" if kind == "hamiltonian" else "velocity"},
                     lambda d: stage_floor(spec, kind, mplan, files))
     mo = stages.run(f"modes/{variant.name}/{kind}", {"train": settings},
@@ -213,9 +177,6 @@ def figure_stage(spec, plan: Plan, stages: Stages, vname: str, models: dict,
     """Stage ``draw/<variant>``: the report's figures of one data set (loss curves, rollouts,
     the arm; the first data set's animation too) from its models' results; returns the report
     lines that show them. Drawn again when a figure it drew is gone."""
-    import re
-
-
     name = f"draw/{vname}"
     settings = {"models": models, "draft": is_draft(), "animate": first}
     stored = stages.finished(name, settings)
@@ -292,7 +253,7 @@ def _unfinished_models(config: ReproduceConfig, out: Path, plan: Plan, data: dic
             if parallel.unfinished(chain, out):
                 m = variant_model(plan, variant, kind, data["variants"][variant.name])
                 work.append((f"{variant.name}/{kind}", _model_worker,
-                             (config, str(out), variant.name, kind), int(m["epochs"])))
+                             (config, str(out), variant.name, kind), int(m.epochs)))
     return work
 
 
@@ -305,28 +266,3 @@ def _model_worker(config: ReproduceConfig, out: str, variant_name: str, kind: st
     variant = next(v for v in plan.variants if v.name == variant_name)
     return parallel.run_in_worker(config, f"{variant_name}/{kind}", out, lambda stages, progress: (
         model_stages(spec, plan, stages, variant, kind, data, settings, progress)))
-
-
-def notebook_run(task: str) -> tuple[ReproduceConfig, Path]:
-    """The configuration and output folder a task notebook uses, from the environment:
-    ``SOFTPINN_QUICK`` ("0" for the full run; default quick), ``SOFTPINN_OUT`` (default
-    ``runs/notebooks``), and ``SOFTPINN_EPOCHS`` / ``SOFTPINN_LBFGS`` to override the budgets
-    (the test suite runs the notebooks on the shortest budgets)."""
-
-    quick = os.environ.get("SOFTPINN_QUICK", "1") != "0"
-    epochs = os.environ.get("SOFTPINN_EPOCHS")
-    lbfgs = os.environ.get("SOFTPINN_LBFGS")
-    config = ReproduceConfig(
-        task, quick=quick, epochs=int(epochs) if epochs else None,
-        lbfgs_steps=int(lbfgs) if lbfgs else None,
-    )
-    root = Path(os.environ.get("SOFTPINN_OUT", "runs/notebooks"))
-    return config, root / f"{task}{'-quick' if quick else ''}"
-
-
-def machine_description() -> str:
-
-    return f"{platform.machine()}, {os.cpu_count()} cores, {platform.system()}, " \
-           f"Python {platform.python_version()}"
-
-

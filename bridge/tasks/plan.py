@@ -10,8 +10,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.errors import UserError
-from softpinn.symbolic import MODEL_KEYS, data_config, load_spec, physics_data_table
+from softpinn.symbolic import LOSS_KEYS, MODEL_KEYS, data_config, load_spec, physics_data_table
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
 #: studies ``reproduce`` runs with their own pipeline (the paper's experiment: .experiment)
@@ -126,14 +127,15 @@ class Variant:
 
 @dataclass(frozen=True)
 class Plan:
-    """What a task run does: data settings, variants, and per-model training settings."""
+    """What a task run does: data settings, variants, and each network's budget
+    (:class:`.budget.ModelBudget`, by kind)."""
 
     task: str
     quick: bool
     data: Mapping[str, Any]
     fixed_step: Mapping[str, Any] | None
     variants: tuple[Variant, ...]
-    models: Mapping[str, Mapping[str, Any]]
+    models: Mapping[str, ModelBudget]
     batch_size: int
     horizon: float
     long_horizon: float
@@ -144,7 +146,10 @@ class Plan:
     float32: bool
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self), default=list))
+        """The plan as ``plan.json`` holds it (each model's budget: :meth:`ModelBudget.to_dict`)."""
+        d = dataclasses.asdict(dataclasses.replace(self, models={}))
+        d["models"] = {kind: m.to_dict() for kind, m in self.models.items()}
+        return json.loads(json.dumps(d, default=list))
 
 
 #: [data]'s output rate [Hz] when it names none (symbolic.simulation._datatable's default)
@@ -166,9 +171,9 @@ def data_step(plan: Plan, variant: Variant) -> float:
     return 1.0 / float(plan.data.get("rate", DEFAULT_RATE))
 
 
-def own_substeps(m: Mapping[str, Any], step: float) -> int:
-    """RK4 sub-steps of a model plan ``m`` with a ``max_step`` of its own over a data step."""
-    return max(int(m.get("substeps", 1)), substeps_for(step, float(m["max_step"])))
+def own_substeps(m: ModelBudget, step: float) -> int:
+    """RK4 sub-steps of a model ``m`` with a ``max_step`` of its own over a data step."""
+    return max(int(m.substeps), substeps_for(step, float(m.max_step)))
 
 
 def make_plan(spec, config: ReproduceConfig) -> Plan:
@@ -217,59 +222,8 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
     else:
         rate = float(data.get("rate", DEFAULT_RATE))
         variants = (Variant("main", "cvodes", None, physics + ("blackbox",), more_steps(rate)),)
-    models: dict[str, dict[str, Any]] = {}
-    for kind in physics + ("blackbox",):
-        budget = recipe.full.get(kind, {})
-        net = kind if kind != "blackbox" else physics[0]
-        if quick:
-            m = dict(
-                mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2), hidden=(32, 2),
-                epochs=int(recipe.quick["epochs"]), lbfgs=0, lr=3e-3,
-            )
-        else:
-            m = dict(
-                mass=recipe.network(net, "mass", (64, 3)),
-                potential=recipe.network(net, "potential", (64, 3)),
-                damping=recipe.network(net, "damping", (16, 2)),
-                input=recipe.network(net, "input", (16, 2)),
-                hidden=recipe.network("blackbox", "hidden", (128, 3)),
-                epochs=int(budget["epochs"]) if "epochs" in budget else default_epochs(
-                    spec, data, kind, recipe.batch_size),
-                lbfgs=int(budget.get("lbfgs_steps", 0)),
-                lr=float(budget.get("lr", 2e-3)),
-            )
-            for name in ("mass", "potential"):
-                m[name] = (max(m[name][0], MIN_WIDTH), m[name][1])
-        m["paper_epochs"] = recipe.network(kind, "epochs")
-        m.update(substeps=recipe.substeps, input_hold=recipe.input_hold)
-        if "max_step" in recipe.networks.get(kind, {}):  # this network's own longest RK4 step
-            m["max_step"] = float(recipe.networks[kind]["max_step"])
-        # the loss a network learns from (eq. 8/9 unless the recipe says otherwise)
-        m.update({k: recipe.networks.get(kind, {})[k] for k in ("loss", "loss_weight",
-                                                                "accel_labels", "accel_space",
-                                                                "test_with")
-                  if k in recipe.networks.get(kind, {})})
-        # how the network is built and takes the data (a known A, the damping's form, momenta)
-        m.update({k: v for k, v in recipe.networks.get(kind, {}).items() if k in MODEL_KEYS})
-        if kind == "hamiltonian" and m.get("momenta") != "velocity":
-            m["mass_init"] = "data"  # M⁻¹'s initial diagonal from the data (learn.mass_scale)
-        elif kind == "lagrangian" and m.get("known_input"):
-            # with A known, M itself carries the data's scale (RESULTS.md: "The start of M
-            # matters with A known")
-            m["mass_init"] = "data"
-        m["equal_steps"] = bool(budget.get("equal_steps", False)) and not quick
-        if "patience" in budget and not quick:  # evaluations without a better test loss
-            m["patience"] = int(budget["patience"])
-        if "overfit" in budget and not quick:  # stop once the test loss stays above X x best
-            m["overfit"] = float(budget["overfit"])
-        if "test_samples" in budget and not quick:  # held-out pairs the test loss is taken on
-            m["test_samples"] = int(budget["test_samples"])
-        if config.epochs is not None:
-            m["epochs"] = config.epochs
-            m["equal_steps"] = False
-        if config.lbfgs_steps is not None:
-            m["lbfgs"] = config.lbfgs_steps
-        models[kind] = m
+    models = {kind: _model_budget(spec, config, data, kind)
+              for kind in physics + ("blackbox",)}
     other_dt = recipe.other_dt
     if other_dt is None:
         rate = float(data.get("rate", max(data.get("rates", [DEFAULT_RATE]))))
@@ -292,3 +246,56 @@ def make_plan(spec, config: ReproduceConfig) -> Plan:
     )
 
 
+
+
+def _model_budget(spec, config: ReproduceConfig, data: Mapping[str, Any],
+                  kind: str) -> ModelBudget:
+    """Network ``kind``'s budget in a run of ``spec`` (``data``: the run's ``[data]`` table):
+    quick settings or the recipe's full-run sizes and budget, the network's loss and model
+    settings, and the call's overrides (``--epochs``, ``--lbfgs-steps``)."""
+    recipe, quick = spec.recipe, config.quick
+    budget = recipe.full.get(kind, {})
+    own = recipe.networks.get(kind, {})
+    net = kind if kind != "blackbox" else recipe.physics[0]
+    if quick:
+        sizes = dict(mass=(16, 2), potential=(16, 2), damping=(8, 2), input=(8, 2),
+                     hidden=(32, 2))
+        epochs, lbfgs, lr = int(recipe.quick["epochs"]), 0, 3e-3
+    else:
+        sizes = dict(mass=recipe.network(net, "mass", (64, 3)),
+                     potential=recipe.network(net, "potential", (64, 3)),
+                     damping=recipe.network(net, "damping", (16, 2)),
+                     input=recipe.network(net, "input", (16, 2)),
+                     hidden=recipe.network("blackbox", "hidden", (128, 3)))
+        for name in ("mass", "potential"):
+            sizes[name] = (max(sizes[name][0], MIN_WIDTH), sizes[name][1])
+        epochs = int(budget["epochs"]) if "epochs" in budget else default_epochs(
+            spec, data, kind, recipe.batch_size)
+        lbfgs, lr = int(budget.get("lbfgs_steps", 0)), float(budget.get("lr", 2e-3))
+    # the loss a network learns from (eq. 8/9 unless the recipe says otherwise), and how it is
+    # built and takes the data (a known A, the damping's form, momenta)
+    given = {k: own[k] for k in LOSS_KEYS if k in own}
+    given.update({k: v for k, v in own.items() if k in MODEL_KEYS})
+    mass_init = None
+    if kind == "hamiltonian" and given.get("momenta") != "velocity":
+        mass_init = "data"  # M⁻¹'s initial diagonal from the data (learn.mass_scale)
+    elif kind == "lagrangian" and given.get("known_input"):
+        # with A known, M itself carries the data's scale (RESULTS.md: "The start of M
+        # matters with A known")
+        mass_init = "data"
+    # a full run's stopping rules: evaluations without a better test loss (patience), stop
+    # once the test loss stays above X x best (overfit), held-out pairs of the test loss
+    stops = {} if quick else {k: (float if k == "overfit" else int)(budget[k])
+                              for k in ("patience", "overfit", "test_samples") if k in budget}
+    equal_steps = bool(budget.get("equal_steps", False)) and not quick
+    if config.epochs is not None:
+        epochs, equal_steps = config.epochs, False
+    if config.lbfgs_steps is not None:
+        lbfgs = config.lbfgs_steps
+    return ModelBudget(
+        **sizes, epochs=epochs, lbfgs=lbfgs, lr=lr, paper_epochs=recipe.network(kind, "epochs"),
+        substeps=recipe.substeps, input_hold=recipe.input_hold,
+        # this network's own longest RK4 step
+        max_step=float(own["max_step"]) if "max_step" in own else None,
+        **given, mass_init=mass_init, equal_steps=equal_steps, **stops,
+    )

@@ -21,8 +21,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from softpinn.symbolic import _outputs as outputs
 from softpinn.errors import UserError
+from softpinn.symbolic import _outputs as outputs
 
 #: Compiler flags: -O1 compiles 1.5-6x faster than -O2 and runs as fast (docs/pitfalls.md).
 DEFAULT_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")

@@ -26,6 +26,7 @@ task5's forward dynamics (10,013 SX instructions) runs at 0.4 µs per state on o
 from __future__ import annotations
 
 import ctypes
+import ctypes.util
 import hashlib
 import json
 import os
@@ -35,6 +36,7 @@ import sys
 import tempfile
 import threading
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +44,7 @@ import casadi as ca
 import numpy as np
 
 from softpinn.symbolic import _outputs as outputs
+from softpinn.symbolic.codegen._codegen import cache_dir, remove_stale_builds
 from softpinn.symbolic.codegen._compiler import (
     DEFAULT_TIMEOUT,
     CompilerError,
@@ -49,7 +52,15 @@ from softpinn.symbolic.codegen._compiler import (
     compile_c,
     find_compiler,
 )
-from softpinn.symbolic.codegen._kernel_source import HEADER, WIDTH, KernelError, dense, expand, kernel_source, rk4_source
+from softpinn.symbolic.codegen._kernel_source import (
+    HEADER,
+    WIDTH,
+    KernelError,
+    dense,
+    expand,
+    kernel_source,
+    rk4_source,
+)
 
 #: bump when the generated source (:mod:`.kernel_source`) changes (part of the cache key)
 VERSION = 2
@@ -69,8 +80,6 @@ def _mvec_available() -> bool:
     """glibc's libmvec on x86_64 Linux (its vector sin/cos)."""
     if not (sys.platform.startswith("linux") and platform.machine() in ("x86_64", "AMD64")):
         return False
-    import ctypes.util
-
     return ctypes.util.find_library("mvec") is not None
 
 
@@ -105,8 +114,6 @@ def build(source: str, tag: str, *, directory=None, compiler=None,
     """Compile ``source`` (cached by its content, the compiler and the flags) and load it;
     None when no compiler is found. The fastest setting that compiles wins (vectorised with
     libmvec, vectorised, plain)."""
-    from softpinn.symbolic.codegen._codegen import cache_dir, remove_stale_builds
-
     cc = find_compiler(compiler)
     if cc is None:
         return None
@@ -299,8 +306,6 @@ class RK4:
             for ix in parts:
                 run(ix)
         else:
-            from concurrent.futures import ThreadPoolExecutor
-
             with ThreadPoolExecutor(len(parts)) as pool:
                 list(pool.map(run, parts))
         return out

@@ -1,9 +1,9 @@
 """Equations of motion M qdd + C qd + G + D qd = A u (eq. 4): the symbolic model of a spec.
 
-:func:`derive` turns a :class:`~symbolic.spec._spec.ModelSpec` into a :class:`SymbolicModel`: a list
-of energy *parts* (lumped closed forms, or a plate density to integrate over zeta by
-Gauss-Legendre quadrature, one per PCC segment), the constant damping matrix D and the input
-matrix A(q). It does no file I/O and builds no numeric code; :mod:`symbolic.model._functions` wraps the
+:func:`derive` turns a :class:`~symbolic.spec._model_spec.ModelSpec` into a :class:`SymbolicModel`:
+a list of energy *parts* (lumped closed forms, or a plate density to integrate over zeta by
+Gauss-Legendre quadrature, one per PCC segment), the constant damping matrix D and the input matrix
+A(q). It does no file I/O and builds no numeric code; :mod:`symbolic.model._functions` wraps the
 parts into CasADi Functions (mapping each plate density over the quadrature nodes).
 """
 
@@ -17,15 +17,14 @@ import numpy as np
 from softpinn.symbolic.derivation import _kinematics as kin
 from softpinn.symbolic.derivation._energies import (
     DEFAULT_ORDER,
-    HoistedPlate,
     LumpedTerms,
     PlateTerms,
-    SegmentMoments,
     Terms,
     check_order,
     gauss_legendre,
 )
-from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.symbolic.derivation._hoisted import HoistedPlate, SegmentMoments
+from softpinn.symbolic.spec._model_spec import ModelSpec
 
 
 @dataclass
@@ -144,6 +143,6 @@ def hamiltonian_field(M, p, G, D, A, u, solve, dTdq):
 
 
 def derive(spec: ModelSpec, order: int = DEFAULT_ORDER, hoist: bool = True) -> SymbolicModel:
-    """The symbolic model of ``spec`` (quadrature ``order`` for the zeta integrals; ``hoist``:
-    use :class:`~symbolic.derivation._energies.HoistedPlate` for M, G and C qd of spatial segments)."""
+    """The symbolic model of ``spec`` (quadrature ``order`` for the zeta integrals; ``hoist``: use
+    :class:`~symbolic.derivation._hoisted.HoistedPlate` for M, G and C qd of spatial segments)."""
     return SymbolicModel(spec, order, hoist)

@@ -2,11 +2,11 @@
 
 Spatial segment i has q_i = [phi_i, theta_i, dL_i] (``phi-theta``) or q_i = [dx_i, dy_i, dL_i]
 (``delta``, theta_i = sqrt(dx_i^2 + dy_i^2) / d_i, (cos phi_i, sin phi_i) = (dx_i, dy_i) / (d_i
-theta_i)). Its transform is eq. 13; the plate at fraction zeta of the segment uses
-theta_i -> zeta theta_i in the trigonometric terms with lambda_i = (L0_i + dL_i) / theta_i
-unchanged. Every term is written with the entire functions of :mod:`symbolic.derivation._smooth`, so the
-``delta`` form is smooth at dx = dy = 0 (the ``phi-theta`` form is finite there but its Jacobian
-loses rank: the phi column vanishes).
+theta_i)). Its transform is eq. 13; the plate at fraction zeta of the segment uses theta_i -> zeta
+theta_i in the trigonometric terms with lambda_i = (L0_i + dL_i) / theta_i unchanged. Every term is
+written with the entire functions of :mod:`symbolic.derivation._smooth`, so the ``delta`` form is
+smooth at dx = dy = 0 (the ``phi-theta`` form is finite there but its Jacobian loses rank: the phi
+column vanishes).
 
 Segments are chained as in eq. 14: segment i sits behind the full transforms of segments
 1..i-1, each followed by Rz(pi / a_dof). The arm starts straight along +z of the base frame.
@@ -22,7 +22,7 @@ import math
 import casadi as ca
 
 from softpinn.symbolic.derivation._smooth import Jet, cosc, sinc
-from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.symbolic.spec._model_spec import ModelSpec
 
 
 def rot_z(angle: float) -> ca.DM:
@@ -34,8 +34,8 @@ def rot_z(angle: float) -> ca.DM:
 def segment_pose(qi, length: float, d: float, parameterization: str, zeta=1.0, jet=None):
     """Rotation R (3x3) and position p (3x1) of the plate at ``zeta`` in the segment frame (eq. 13).
 
-    ``qi`` is the SX 3-vector of the segment's coordinates, ``length`` its rest length L0 and
-    ``d`` its actuator radius (used by ``delta``). With a :class:`~symbolic.derivation._smooth.Jet`, cosc
+    ``qi`` is the SX 3-vector of the segment's coordinates, ``length`` its rest length L0 and ``d``
+    its actuator radius (used by ``delta``). With a :class:`~symbolic.derivation._smooth.Jet`, cosc
     and sinc enter as the jet's symbols (differentiate with the jet, then finalize).
     """
     L = length + qi[2]

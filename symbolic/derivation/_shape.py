@@ -14,7 +14,7 @@ import numpy as np
 
 from softpinn.errors import UserError
 from softpinn.symbolic.derivation._kinematics import planar_plate, spatial_plate
-from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.symbolic.spec._model_spec import ModelSpec
 
 PCC_KINDS = ("planar-pcc", "spatial-pcc")
 

@@ -5,9 +5,9 @@ momentum, Hamiltonian form (eq. 7) and the ODE right-hand side.
 (see :data:`SIGNATURES`); names are ``f"{safe_spec_name}_{key}"``. Structure, for small and fast
 generated C:
 
-* each plate density (one per PCC segment, :class:`~symbolic.derivation._energies.PlateTerms`) is ONE SX
-  Function of (q, qd, zeta, w), mapped serially over the Gauss-Legendre nodes with the outputs
-  summed (``Function.map`` with ``reduce_in``/``reduce_out``) inside an MX graph;
+* each plate density (one per PCC segment, :class:`~symbolic.derivation._energies.PlateTerms`) is
+  ONE SX Function of (q, qd, zeta, w), mapped serially over the Gauss-Legendre nodes with the
+  outputs summed (``Function.map`` with ``reduce_in``/``reduce_out``) inside an MX graph;
 * M, G and C qd are outputs of that one mapped Function (common subexpressions shared), never
   one flat expression;
 * linear solves with M use a small Cholesky factorisation written out in SX (a separate
@@ -27,7 +27,8 @@ from softpinn.symbolic.derivation import _eom as eom
 from softpinn.symbolic.derivation import _kinematics as kin
 from softpinn.symbolic.derivation._energies import DEFAULT_ORDER, check_order
 from softpinn.symbolic.derivation._eom import Part, SymbolicModel, derive
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import load_spec
 
 #: key -> (input names, output names)
 SIGNATURES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -138,7 +139,7 @@ class _Builder:
     def hoisted_function(self, part: Part, keys: tuple[str, ...], name: str) -> ca.Function:
         """Like :meth:`part_function` for a spatial segment, with the base-frame kinematics
         as inputs (computed once by :meth:`chain`) and only the per-node density mapped
-        (:class:`~symbolic.derivation._energies.HoistedPlate`): (q, qd, base...) -> terms."""
+        (:class:`~symbolic.derivation._hoisted.HoistedPlate`): (q, qd, base...) -> terms."""
         hp, n = part.hoisted, self.n
         k = hp.k
         q, qd = ca.MX.sym("q", n), ca.MX.sym("qd", n)
@@ -345,8 +346,8 @@ def _structurally_zero(part: Part, key: str) -> bool:
 
 
 def functions_of(model: SymbolicModel) -> dict[str, ca.Function]:
-    """The Functions of an already derived model (:func:`symbolic.derivation._eom.derive`), keyed as in
-    :data:`SIGNATURES`: wraps its expressions, derives nothing again."""
+    """The Functions of an already derived model (:func:`symbolic.derivation._eom.derive`), keyed as
+    in :data:`SIGNATURES`: wraps its expressions, derives nothing again."""
     builder = _Builder(model)
     return {key: builder.build(key) for key in SIGNATURES}
 

@@ -5,11 +5,11 @@ evaluated with ``Function.map(N)`` in one call (no Python loop), and returns num
 (n, n) / (n,) / float for one state, (N, n, n) / (N, n) / (N,) for a batch.
 
 Batches of :data:`COMPILE_FROM` states or more run a batched C kernel of the function
-(:mod:`symbolic.codegen._kernel`: the SX instructions inside one loop over the states, vectorised by the
-compiler; compiled once per machine into the code cache of :mod:`symbolic.codegen._codegen`): task5's
-forward dynamics costs about 0.4 µs per state there, against 4.8 µs in CasADi's own C (``map``,
-the path for a function that has no kernel) and 56 µs in CasADi's interpreter, which stays the
-path for single states and small batches (where a first compile would cost more than it saves)
+(:mod:`symbolic.codegen._kernel`: the SX instructions inside one loop over the states, vectorised by
+the compiler; compiled once per machine into the code cache of :mod:`symbolic.codegen._codegen`):
+task5's forward dynamics costs about 0.4 µs per state there, against 4.8 µs in CasADi's own C
+(``map``, the path for a function that has no kernel) and 56 µs in CasADi's interpreter, which stays
+the path for single states and small batches (where a first compile would cost more than it saves)
 and the fallback when no C compiler is found (with one warning).
 """
 
@@ -21,12 +21,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from softpinn.errors import UserError
 from softpinn.symbolic.codegen import _codegen as codegen
 from softpinn.symbolic.codegen import _kernel as kernel
 from softpinn.symbolic.codegen._compiler import CompilerError
-from softpinn.errors import UserError
 from softpinn.symbolic.model._functions import functions
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import load_spec
 
 #: batches of at least this many states run compiled C (``compiled=None``, the default)
 COMPILE_FROM = 100

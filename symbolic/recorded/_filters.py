@@ -225,7 +225,7 @@ def savgol(t, y, window: int, degree: int):
     """Savitzky-Golay values and first two derivatives; scipy on uniform times, the same local
     polynomial fits made in time otherwise."""
     if is_uniform(t):
-        from scipy.signal import savgol_filter
+        from scipy.signal import savgol_filter  # deferred: scipy.signal is slow to import
 
         dt = float(np.mean(np.diff(t)))
         out = [savgol_filter(y, window, degree, deriv=k, delta=dt, axis=0, mode="interp")

@@ -2,8 +2,8 @@
 
 :func:`import_recordings` reads CSV files (:mod:`symbolic.recorded._csv`), maps tip orientation to
 the bending configuration of a one-segment spatial PCC arm (:mod:`symbolic.spec._orientation`),
-smooths and differentiates (:mod:`symbolic.recorded._filters`), optionally resamples to a uniform rate,
-computes the momentum p = M(q) q̇ with the model's mass matrix, and returns
+smooths and differentiates (:mod:`symbolic.recorded._filters`), optionally resamples to a uniform
+rate, computes the momentum p = M(q) q̇ with the model's mass matrix, and returns
 :class:`~symbolic.simulation._datafile.DatasetArrays` whose ``meta`` records every choice.
 
 Order of the steps, per trajectory: orientation -> q (phi unwrapped along time for
@@ -23,12 +23,19 @@ from pathlib import Path
 
 import numpy as np
 
-from softpinn.symbolic.recorded import _filters as filters
-from softpinn.symbolic.spec import _orientation as orientation
-from softpinn.symbolic.simulation._datafile import FORMAT, FORMAT_VERSION, DatasetArrays
 from softpinn.symbolic._outputs import count_of
-from softpinn.symbolic.recorded._csv import ORIENTATION_COLUMNS, Recording, RecordingError, read_recordings
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.symbolic.model._true_model import TrueModel
+from softpinn.symbolic.recorded import _filters as filters
+from softpinn.symbolic.recorded._csv import (
+    ORIENTATION_COLUMNS,
+    Recording,
+    RecordingError,
+    read_recordings,
+)
+from softpinn.symbolic.simulation._datafile import FORMAT, FORMAT_VERSION, DatasetArrays
+from softpinn.symbolic.spec import _orientation as orientation
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import load_spec
 
 CONVENTIONS = {
     "quaternion": "unit quaternion (qw, qx, qy, qz), Hamilton, rotating tip-frame vectors into "
@@ -250,8 +257,6 @@ def import_recordings(
 
 def momentum(spec: ModelSpec, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
     """p = M(q) qd for every sample (the model's mass matrix)."""
-    from softpinn.symbolic.model._true_model import TrueModel
-
     tm = TrueModel(spec, compiled=False)
     out = np.empty_like(qd)
     chunk = 20000

@@ -5,15 +5,18 @@ default, as the paper's platform) or planar, standing up or hanging. The numbers
 small soft arm (0.2 m, 0.1 kg segments; bending stiffness about 1 N m/rad per segment it
 carries, enough to stand up) for the user to replace by their own. The ``[data]`` table is left
 commented out: without it ``softpinn simulate`` takes defaults from the physics
-(:mod:`symbolic.simulation._defaults`), which follow edits of the physics; the template shows their values
-for the physics it was written with.
+(:mod:`symbolic.simulation._defaults`), which follow edits of the physics; the template shows their
+values for the physics it was written with.
 """
 
 from __future__ import annotations
 
 import re
 
-from softpinn.symbolic.spec._spec import ModelSpec, spec_from_toml
+from softpinn.errors import UserError
+from softpinn.symbolic.simulation._defaults import physics_data_table
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import spec_from_toml
 
 SPATIAL_ACTUATIONS = ("tendon", "generalized", "tip-wrench", "none")
 PLANAR_ACTUATIONS = ("generalized", "none")
@@ -122,8 +125,6 @@ def spec_template(name: str, segments: int, *, planar: bool = False, hanging: bo
 
 def data_comment(spec: ModelSpec) -> str:
     """The commented ``[data]`` block for a template: the physics defaults' values."""
-    from softpinn.symbolic.simulation._defaults import physics_data_table
-
     table, summary = physics_data_table(spec)
     lines = [
         "",
@@ -157,6 +158,4 @@ def write_template(name: str, segments: int, **options) -> tuple[str, ModelSpec]
 
 
 def _error(message: str):
-    from softpinn.errors import UserError
-
     return UserError(message)

@@ -4,9 +4,11 @@ by :func:`read_dataset`; selecting trajectories, resampling and splitting.
 
 Flat arrays over all samples of all trajectories: ``t`` (T,), ``q``, ``qd``, ``qdd``, ``p``
 (T, n), ``u`` (T, m), ``traj`` (T,) int64, and ``meta``, a 0-d string of JSON (the spec, how the
-data were simulated, signals, seeds, noise, splits, versions). Optional: static equilibria
-(:mod:`symbolic.simulation._equilibria`) ``eq_q`` (K, n), ``eq_u`` (K, m), ``eq_force`` (K, n), kept through
-selection, resampling and splitting (they are labels of the model, not samples).
+data were simulated, signals, seeds, noise, splits, versions). ``p`` may be left out (a recording
+has no momenta; ``softpinn.files.DATASET_OPTIONAL``, the rule ``learn`` reads files by too: then
+``DatasetArrays.p`` is None). Optional: static equilibria
+(:mod:`symbolic.simulation._equilibria`) ``eq_q`` (K, n), ``eq_u`` (K, m), ``eq_force`` (K, n),
+kept through selection, resampling and splitting (they are labels of the model, not samples).
 """
 
 
@@ -21,15 +23,22 @@ from pathlib import Path
 
 import numpy as np
 
+from softpinn.files import (
+    DATASET_ARRAYS,
+    DATASET_EQUILIBRIUM,
+    DATASET_REQUIRED,
+)
 from softpinn.symbolic import _outputs as outputs
 from softpinn.symbolic.simulation._datatable import DataError
 from softpinn.symbolic.simulation._signals import Signal, signal_from_dict
 
 FORMAT = "softpinn-dataset"
 FORMAT_VERSION = 1
-ARRAY_KEYS = ("t", "q", "qd", "qdd", "p", "u", "traj")
+#: The arrays of a dataset file but ``meta``, in the order they are written (``p`` optional:
+#: :data:`softpinn.files.DATASET_OPTIONAL`).
+ARRAY_KEYS = DATASET_ARRAYS
 #: Optional arrays: static equilibria G(q*) = A(q*) u* and their force f* = G(q*) (docs/dataset.md).
-EQUILIBRIUM_KEYS = ("eq_q", "eq_u", "eq_force")
+EQUILIBRIUM_KEYS = DATASET_EQUILIBRIUM
 
 # --------------------------------------------------------------------------------------------
 # Arrays
@@ -43,7 +52,7 @@ class DatasetArrays:
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
-    p: np.ndarray
+    p: np.ndarray | None  # None: a file without momenta (written by simulate: always there)
     u: np.ndarray
     traj: np.ndarray
     meta: dict
@@ -52,10 +61,17 @@ class DatasetArrays:
     eq_force: np.ndarray | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The arrays a file holds: :data:`ARRAY_KEYS` and the equilibria when present."""
-        out = {k: getattr(self, k) for k in ARRAY_KEYS}
+        """The arrays a file holds: :data:`ARRAY_KEYS` (those present) and the equilibria when
+        present."""
+        out = {k: getattr(self, k) for k in ARRAY_KEYS if getattr(self, k) is not None}
         out.update(self.equilibria())
         return out
+
+    def rows(self, rows) -> dict[str, np.ndarray | None]:
+        """The samples ``rows`` (indices or a slice) of every array of :data:`ARRAY_KEYS` (an
+        absent one stays None)."""
+        return {k: None if getattr(self, k) is None else getattr(self, k)[rows]
+                for k in ARRAY_KEYS}
 
     def equilibria(self) -> dict[str, np.ndarray]:
         """The optional equilibrium arrays that are present (none, or all three)."""
@@ -83,7 +99,7 @@ def write_datasets(
 ) -> list[Path]:
     """Write several dataset files (a data set and its resampled siblings) as one step.
 
-    Every file is first written to a temporary sibling (``.<name>.partial-<pid>@<host>``), and
+    Every file is first written to a temporary sibling (``.<name>.partial-<pid>@<host>-*``), and
     only when all are complete are they renamed into place (the first path last), so that an
     interrupted call leaves none of them and nothing that blocks a rerun; temporary siblings of
     a killed run are removed. Without ``force`` an existing file is refused before anything is
@@ -135,10 +151,10 @@ def read_dataset(path: str | os.PathLike) -> DatasetArrays:
         with np.load(path, allow_pickle=False) as z:
             if not hasattr(z, "files"):  # a plain .npy array, not a dataset's .npz
                 raise ValueError("a single array, not an .npz archive")
-            missing = [k for k in (*ARRAY_KEYS, "meta") if k not in z.files]
+            missing = [k for k in DATASET_REQUIRED if k not in z.files]
             if missing:
                 raise DataError(f"dataset file {path}: missing key(s) {', '.join(missing)}")
-            arrays = {k: np.asarray(z[k]) for k in ARRAY_KEYS}
+            arrays = {k: np.asarray(z[k]) if k in z.files else None for k in ARRAY_KEYS}
             arrays.update({k: np.asarray(z[k]) for k in EQUILIBRIUM_KEYS if k in z.files})
             meta = json.loads(str(z["meta"].item()))
     except DataError:
@@ -168,7 +184,7 @@ def select_trajectories(
         if ids
         else np.zeros(0, dtype=int)
     )
-    out = {k: getattr(data, k)[rows] for k in ARRAY_KEYS}
+    out = data.rows(rows)
     if renumber:
         mapping = {old: new for new, old in enumerate(ids)}
         out["traj"] = np.array([mapping[int(i)] for i in out["traj"]], dtype=np.int64)
@@ -200,8 +216,7 @@ def resample(data: DatasetArrays, rate: float) -> DatasetArrays:
     meta["resampled_from_rate"] = src
     meta["samples_per_trajectory"] = int(len(rows) // max(len(data.trajectory_ids), 1))
     meta["simulation"] = dict(meta.get("simulation", {}), rate=float(rate))
-    return DatasetArrays(meta=meta, **{key: getattr(data, key)[rows] for key in ARRAY_KEYS},
-                         **data.equilibria())
+    return DatasetArrays(meta=meta, **data.rows(rows), **data.equilibria())
 
 
 def split(data: DatasetArrays, name: str) -> DatasetArrays:
@@ -219,7 +234,7 @@ def take_samples(data: DatasetArrays, count: int | None) -> DatasetArrays:
         return data
     if count < 2:
         raise DataError(f"physics_samples: must be at least 2, got {count}")
-    out = {k: getattr(data, k)[:count] for k in ARRAY_KEYS}
+    out = data.rows(slice(None, count))
     meta = dict(data.meta, samples_kept=int(count))
     return DatasetArrays(meta=meta, **out, **data.equilibria())
 

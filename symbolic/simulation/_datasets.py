@@ -1,6 +1,6 @@
 """Data generation after the paper (Section III-B, Table III): a spec's ``[data]`` table
-(:mod:`symbolic.simulation._datatable`) becomes trajectories in the dataset format (:mod:`symbolic.simulation._datafile`,
-re-exported here).
+(:mod:`symbolic.simulation._datatable`) becomes trajectories in the dataset format
+(:mod:`symbolic.simulation._datafile`, re-exported here).
 
 A preset's ``[data]`` table says how the paper generated the data of its task; :class:`DataConfig`
 validates it (unknown keys are refused with a message naming the file and the field).
@@ -36,6 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.progress import ProgressFn
+from softpinn.symbolic.codegen._codegen import compile_functions
+from softpinn.symbolic.model._functions import functions
 from softpinn.symbolic.simulation._datafile import (
     ARRAY_KEYS,
     FORMAT,
@@ -57,10 +60,13 @@ from softpinn.symbolic.simulation._datatable import (
     data_config,
     with_overrides,
 )
+from softpinn.symbolic.simulation._defaults import physics_data_table
 from softpinn.symbolic.simulation._signals import KINDS as SIGNAL_KINDS
 from softpinn.symbolic.simulation._signals import Signal, sample_signal
-from softpinn.symbolic.simulation._simulate import INTEGRATORS, SimulationConfig, simulate
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.symbolic.simulation._sim_config import INTEGRATORS, SimulationConfig
+from softpinn.symbolic.simulation._simulate import simulate
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import load_spec
 
 __all__ = [
     "ARRAY_KEYS",
@@ -210,8 +216,6 @@ def plan_dataset(
     spec = load_spec(model)
     defaults = None
     if data is None and not spec.data:  # no [data]: defaults from the physics, not q = 0, u = 0
-        from softpinn.symbolic.simulation._defaults import physics_data_table
-
         table, defaults = physics_data_table(spec)
         spec = dataclasses.replace(spec, data=table)
         given = {"trajectories": trajectories, "duration [s]": duration, "rate [Hz]": rate,
@@ -314,7 +318,7 @@ def make_dataset(
     fns: Mapping | None = None,
     compile: bool = True,
     cache: str | os.PathLike | None = None,
-    progress: Callable[[int], None] | None = None,
+    progress: ProgressFn | None = None,
     simulator: Callable | None = None,
     simulator_meta: Mapping | None = None,
     **options,
@@ -323,13 +327,14 @@ def make_dataset(
 
     Either ``plan`` (from :func:`plan_dataset`) or ``model`` with the keyword ``options`` of
     :func:`plan_dataset`. ``fns`` overrides the model's functions (else
-    :func:`symbolic.model._functions.functions`, compiled to C with :func:`symbolic.codegen._codegen.compiled`
-    when ``compile``; ``cache`` is the compiled-code cache directory). ``progress`` is called
-    with the number of trajectories finished.
+    :func:`symbolic.model._functions.functions`, compiled to C with
+    :func:`symbolic.codegen._codegen.compiled` when ``compile``; ``cache`` is the compiled-code
+    cache directory). ``progress`` is told the trajectories finished (a
+    :class:`softpinn.progress.Progress`).
 
-    ``simulator(x0, signals, config, progress=...)`` replaces CasADi's integration (it returns
-    what :func:`symbolic.simulation._simulate.simulate` does: ``t``, ``x``, ``q``, ``qd``, ``qdd``, ``p``,
-    ``u``, ``info``), e.g. the JAX RK4 of :func:`softpinn.bridge.exact.make_dataset`; its
+    ``simulator(x0, signals, config, progress=...)`` replaces CasADi's integration (it returns what
+    :func:`symbolic.simulation._simulate.simulate` does: ``t``, ``x``, ``q``, ``qd``, ``qdd``,
+    ``p``, ``u``, ``info``), e.g. the JAX RK4 of :func:`softpinn.bridge.exact.make_dataset`; its
     ``simulator_meta`` is merged into ``meta``. Everything else (the plan, the draws of initial
     states and signals, the settle time, the noise, the meta) is this function's, whichever
     integrates.
@@ -348,13 +353,9 @@ def make_dataset(
             raise TypeError("make_dataset: give fns or a simulator, not both")
     elif fns is None:
         t0 = time.perf_counter()
-        from softpinn.symbolic.model._functions import functions
-
         fns = functions(spec)
         timings["functions"] = time.perf_counter() - t0
         if compile:
-            from softpinn.symbolic.codegen._codegen import compile_functions
-
             t0 = time.perf_counter()
             built = compile_functions(fns, directory=cache)
             fns, is_compiled = built.functions, built.compiled

@@ -14,8 +14,8 @@ import numpy as np
 
 from softpinn.errors import UserError
 from softpinn.symbolic.simulation._signals import KINDS as SIGNAL_KINDS
-from softpinn.symbolic.simulation._simulate import INTEGRATORS
-from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.symbolic.simulation._sim_config import INTEGRATORS
+from softpinn.symbolic.spec._model_spec import ModelSpec
 
 
 class DataError(UserError):

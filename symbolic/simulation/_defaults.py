@@ -32,8 +32,9 @@ import math
 
 import numpy as np
 
+from softpinn.symbolic.model._true_model import TrueModel
 from softpinn.symbolic.simulation._datatable import DataError
-from softpinn.symbolic.spec._spec import ModelSpec
+from softpinn.symbolic.spec._model_spec import ModelSpec
 
 BEND = 0.3  # rad
 STRETCH = 0.05  # of the rest length
@@ -118,8 +119,6 @@ def physics_data_table(spec: ModelSpec, tm=None) -> tuple[dict, str]:
             "(docs/spec.md)"
         )
     if tm is None:
-        from softpinn.symbolic.model._true_model import TrueModel
-
         tm = TrueModel(spec, compiled=False)
     n, m = spec.n, spec.m
     names = spec.coordinate_names

@@ -25,6 +25,7 @@ with the same seed uses ``[seed, k]``, its noise ``[seed, 2**31 - 1]``).
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,8 +34,11 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from softpinn.symbolic.model._functions import functions
 from softpinn.symbolic.simulation._datatable import DataError, data_config
-from softpinn.symbolic.spec._spec import ModelSpec, load_spec
+from softpinn.symbolic.simulation._signals import DEFAULT_RANGES, _range
+from softpinn.symbolic.spec._model_spec import ModelSpec
+from softpinn.symbolic.spec._spec import load_spec
 
 #: How the equilibria were drawn and checked, recorded in a dataset's meta["equilibria"].
 METHOD = ("constant inputs uniform in the input box; Newton (casadi rootfinder 'newton') on "
@@ -69,8 +73,6 @@ def input_box(spec: ModelSpec, data: Mapping[str, Any] | None = None
     """The box of constant inputs (low, high), each (m,), that the spec's input signals stay in:
     offset range widened by the largest amplitude (times the number of components for a
     multisine); the zero signal gives the box [0, 0]."""
-    from softpinn.symbolic.simulation._signals import DEFAULT_RANGES, _range
-
     cfg = data_config(spec, data)
     m = spec.m
     if cfg.signal == "zero" or m == 0:
@@ -86,8 +88,6 @@ class _Solver:
 
     def __init__(self, spec: ModelSpec, fns: Mapping[str, ca.Function] | None = None):
         if fns is None:
-            from softpinn.symbolic.model._functions import functions
-
             fns = functions(spec)
         self.n, self.m = spec.n, spec.m
         q = ca.MX.sym("q", self.n)
@@ -191,7 +191,5 @@ def equilibria(model: str | Path | ModelSpec, count: int, *, seed: int = 0,
 def attach(data, eq: Equilibria):
     """``data`` (a :class:`~symbolic.simulation._datafile.DatasetArrays`) with the equilibria as its
     optional arrays ``eq_q``, ``eq_u``, ``eq_force`` and ``meta["equilibria"]``."""
-    import dataclasses
-
     meta = dict(data.meta, equilibria=eq.info)
     return dataclasses.replace(data, meta=meta, eq_q=eq.q, eq_u=eq.u, eq_force=eq.force)

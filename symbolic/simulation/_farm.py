@@ -1,8 +1,8 @@
 """Trajectories farmed out to a Ray cluster (issue 21, part 4): a ``simulator`` for
-:func:`symbolic.simulation._datasets.make_dataset` that integrates chunks of the trajectories as Ray tasks,
-each on a worker that derives (and compiles, through the shared code cache) the model itself,
-then puts the chunks back in order. Trajectories are independent and each is integrated by the
-same code as in-process, so the data set is identical either way (a test).
+:func:`symbolic.simulation._datasets.make_dataset` that integrates chunks of the trajectories as
+Ray tasks, each on a worker that derives (and compiles, through the shared code cache) the model
+itself, then puts the chunks back in order. Trajectories are independent and each is integrated
+by the same code as in-process, so the data set is identical either way (a test).
 
 Ray is an optional extra (``pip install 'softpinn[ray]'``) imported only here, only when asked.
 """
@@ -11,12 +11,18 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 
 import numpy as np
 
 from softpinn.errors import UserError
+from softpinn.progress import Progress
+from softpinn.symbolic.codegen._codegen import compile_functions
+from softpinn.symbolic.model._functions import functions
+from softpinn.symbolic.simulation._sim_config import SimResult
+from softpinn.symbolic.simulation._simulate import simulate
 
 RAY_MISSING = "simulate --ray needs Ray: pip install 'softpinn[ray]'"
 
@@ -26,8 +32,6 @@ def ray_init(ray, **kwargs):
     services with subprocess (fork, then exec at once), which cannot deadlock on JAX's threads;
     the warning would only alarm the user (and fails a test run that turns warnings into
     errors)."""
-    import warnings
-
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called",
                                 category=RuntimeWarning)
@@ -36,13 +40,8 @@ def ray_init(ray, **kwargs):
 
 def _chunk(spec, x0, signals, config, compile, cache):
     """One Ray task: the model's functions on this worker, then the trajectories."""
-    from softpinn.symbolic.model._functions import functions
-    from softpinn.symbolic.simulation._simulate import simulate
-
     fns = functions(spec)
     if compile:
-        from softpinn.symbolic.codegen._codegen import compile_functions
-
         fns = compile_functions(fns, directory=cache).functions
     return simulate(fns, x0, signals, config)
 
@@ -55,15 +54,13 @@ def ray_simulator(spec, *, address: str | None = None, chunks: int | None = None
     (``"auto"`` or ``"HOST:PORT"``), in ``chunks`` tasks (default: one per CPU of the cluster,
     at least one trajectory each)."""
     try:
-        import ray
+        import ray  # an optional extra: imported only when asked for
     except ImportError:
         raise UserError(RAY_MISSING) from None
     if chunks is not None and not (isinstance(chunks, int) and chunks >= 1):
         raise UserError(f"chunks: expected an integer >= 1, got {chunks!r}")
 
     def run(x0: np.ndarray, signals: Sequence, config, progress=None):
-        from softpinn.symbolic.simulation._simulate import SimResult
-
         started = False
         if not ray.is_initialized():
             try:
@@ -86,10 +83,12 @@ def ray_simulator(spec, *, address: str | None = None, chunks: int | None = None
             refs = [task.remote(spec, x0[i:i + size], list(signals[i:i + size]), one, compile,
                                 cache) for i in range(0, k, size)]
             results = []
+            finished = 0
             for ref in refs:  # in order; the progress counts finished chunks
                 results.append(ray.get(ref))
+                finished += len(results[-1].x)
                 if progress is not None:
-                    progress(len(results[-1].x))
+                    progress(Progress(done=finished, total=k, unit="trajectory"))
         finally:
             if started:
                 ray.shutdown()

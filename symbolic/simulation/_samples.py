@@ -1,11 +1,13 @@
 """What a simulation computes at every output sample besides the state: q̈ (eq. 4), p = M q̇
-and M, from the batched C kernels of :mod:`symbolic.codegen._kernel` where the model's functions are
-compiled, else from one mapped CasADi call; and the C kernels' RK4 for :mod:`symbolic.simulation._simulate`.
+and M, from the batched C kernels of :mod:`symbolic.codegen._kernel` where the model's functions
+are compiled, else from one mapped CasADi call; and the C kernels' RK4 for
+:mod:`symbolic.simulation._simulate`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+from concurrent.futures import ThreadPoolExecutor
 
 import casadi as ca
 import numpy as np
@@ -64,8 +66,6 @@ def in_threads(part, N: int, threads: int) -> None:
     C kernels release the GIL, so the blocks run on as many cores)."""
     parts = [ix for ix in np.array_split(np.arange(N), max(1, min(threads, N))) if len(ix)]
     if len(parts) > 1:
-        from concurrent.futures import ThreadPoolExecutor
-
         with ThreadPoolExecutor(len(parts)) as pool:
             list(pool.map(part, parts))
     else:

@@ -40,9 +40,9 @@ from typing import Any
 
 import numpy as np
 
-from softpinn.symbolic.spec import _orientation as orientation
 from softpinn.errors import UserError
 from softpinn.symbolic._outputs import count_of
+from softpinn.symbolic.spec import _orientation as orientation
 
 KINDS = ("imu",)
 OUTPUTS = ("rpy", "quaternion")
@@ -158,7 +158,7 @@ def _three(value, where: str) -> tuple[float, float, float]:
 
 
 def sensor_config(spec) -> SensorConfig:
-    """The sensor of a :class:`~symbolic.spec._spec.ModelSpec` (validated when the spec was
+    """The sensor of a :class:`~symbolic.spec._model_spec.ModelSpec` (validated when the spec was
     loaded); a spec without one is refused."""
     cfg = parse_sensor(spec.sensor, kind=spec.kind, segments=len(spec.segments))
     if cfg is None:
@@ -222,7 +222,7 @@ def _interpolate(t, y, yd, tn):
 
 def record(spec, sensor: SensorConfig, t, q, qd, u, traj, qdd=None) -> Recordings:
     """What ``sensor`` records of simulated trajectories of the one-segment spatial PCC arm
-    ``spec`` (a :class:`~symbolic.spec._spec.ModelSpec`; flat arrays over samples, as in a
+    ``spec`` (a :class:`~symbolic.spec._model_spec.ModelSpec`; flat arrays over samples, as in a
     dataset: ``t`` (N,), ``q``, ``qd`` (N, n), ``u`` (N, m), ``traj`` (N,); ``qdd`` makes the
     true velocities at the sample times cubic too, else they are linear between samples); see
     the module docstring for the model. The trajectories must be sampled at least as finely as
