@@ -13,7 +13,8 @@ Core API::
 from __future__ import annotations
 
 from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
-from softpinn.learn._baseline_errors import BaselineErrors, rollout_errors
+from softpinn.learn._baseline_errors import BaselineErrors
+from softpinn.learn._baseline_errors import rollout_errors as baseline_rollout_errors
 from softpinn.learn._baselines import (
     ARX,
     BASELINE_KINDS,
@@ -117,7 +118,7 @@ __all__ = [
     "RESUMABLE",
     "rk4_step",
     "rollout",
-    "rollout_errors",
+    "baseline_rollout_errors",
     "rollout_loss",
     "rollouts",
     "split_trajectories",

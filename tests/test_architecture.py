@@ -25,7 +25,7 @@ PACKAGES = ("symbolic", "learn", "bridge")
 #: bottom to top; a subpackage imports only those before it (same rank: neither imports the other)
 LAYERS = {
     "bridge": [("base",), ("exact",), ("analysis",), ("figures",), ("export",), ("control",),
-               ("tasks",), ("challenges", "sweep"), ("report",), ("app",), ("cli",)],
+               ("tasks",), ("challenges", "sweep", "cosserat"), ("report",), ("app",), ("cli",)],
     "symbolic": [("spec",), ("derivation",), ("codegen",), ("model",), ("simulation",),
                  ("recorded",), ("standin",), ("presets",)],
 }

@@ -1,0 +1,113 @@
+"""The simplest honest alternatives beside every network (issue 43): "no motion" (hold the first
+state) and least-squares linear models (discrete ARX on q, order 2; the linear second-order model
+M q̈ + D q̇ + K q = B u + c), fitted in closed form on the training trajectories and scored with
+``softpinn predict``'s rollout error on the test trajectories (:mod:`softpinn.learn`'s
+baselines). A network is worth training where it beats them; :func:`verdict` says in one line
+whether it does, at each horizon.
+
+Nothing here writes files: ``predict``, the task and experiment reports and the studies print
+:meth:`BaselineComparison.to_json` and :func:`verdict`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from softpinn.errors import UserError
+from softpinn.learn import Dataset, baseline_rollout_errors, fit_baseline
+
+#: the baselines fitted, with their fitting options, in the order they are shown
+BASELINES: tuple[tuple[str, str, dict], ...] = (
+    ("no motion", "no_motion", {}),
+    ("ARX (order 2)", "arx", {"order": 2}),
+    ("linear 2nd order", "linear2", {}),
+)
+#: the kinds that count as "the best linear model"
+LINEAR = ("ARX (order 2)", "linear 2nd order")
+
+
+@dataclass(frozen=True)
+class BaselineScore:
+    """One baseline's rollout error at one horizon (predict's metric: mean over test
+    trajectories of the mean over samples of ‖q - q̂‖²)."""
+
+    name: str
+    kind: str
+    horizon: float
+    mean: float  # inf where a rollout is not finite
+    std: float
+    out_of_range: tuple[int, ...]  # test trajectories whose rollout left the training range
+
+    def to_json(self) -> dict:
+        finite = lambda x: x if math.isfinite(x) else None  # strict JSON: inf -> null
+        return {"name": self.name, "kind": self.kind, "horizon": self.horizon,
+                "mean": finite(self.mean), "std": finite(self.std),
+                "out_of_range": list(self.out_of_range)}
+
+
+@dataclass(frozen=True)
+class BaselineComparison:
+    """Every baseline at every horizon, fitted on ``train`` and scored on ``test``."""
+
+    train: tuple[int, ...]
+    test: tuple[int, ...]
+    scores: tuple[BaselineScore, ...]
+
+    def at(self, horizon: float) -> tuple[BaselineScore, ...]:
+        return tuple(s for s in self.scores if math.isclose(s.horizon, horizon))
+
+    def no_motion(self, horizon: float) -> BaselineScore:
+        return next(s for s in self.at(horizon) if s.kind == "no_motion")
+
+    def best_linear(self, horizon: float) -> BaselineScore:
+        """The linear model with the smallest error at ``horizon`` (out-of-range rollouts
+        count with their error, which is what a user of that model would get)."""
+        return min((s for s in self.at(horizon) if s.name in LINEAR), key=lambda s: s.mean)
+
+    def to_json(self) -> dict:
+        return {"train_trajectories": list(self.train), "test_trajectories": list(self.test),
+                "scores": [s.to_json() for s in self.scores]}
+
+
+def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],
+                      horizons: Sequence[float], *, reset_every: float | None = None,
+                      input_hold: str = "constant") -> BaselineComparison:
+    """Fit every baseline of :data:`BASELINES` on the ``train`` trajectories of ``data`` and
+    score it on the ``test`` trajectories at each horizon (seconds). Closed form: seconds."""
+    if not horizons:
+        raise UserError("horizon: expected at least one horizon")
+    train, test = tuple(int(i) for i in train), tuple(int(i) for i in test)
+    scores = []
+    for name, kind, options in BASELINES:
+        model = fit_baseline(kind, data, list(train), **options)
+        for h in horizons:
+            res = baseline_rollout_errors(model, data, float(h), traj_ids=list(test),
+                                          reset_every=reset_every, input_hold=input_hold)
+            scores.append(BaselineScore(name, kind, float(h), float(res.rollout_error_mean),
+                                        float(res.rollout_error_std),
+                                        tuple(int(i) for i in res.out_of_range)))
+    return BaselineComparison(train, test, tuple(scores))
+
+
+def _ratio(a: float, b: float) -> str:
+    if not (math.isfinite(a) and math.isfinite(b)) or b <= 0:
+        return "diverged" if not math.isfinite(a) else "-"
+    return f"{a / b:.3g}x"
+
+
+def verdict(model: str, errors: Mapping[float, float], comparison: BaselineComparison) -> str:
+    """One line: does ``model`` (its rollout error at each horizon, predict's metric) beat the
+    best linear model and no motion at each horizon, and by how much it misses where not."""
+    parts = []
+    for h, err in sorted(errors.items()):
+        lin, still = comparison.best_linear(h), comparison.no_motion(h)
+        best = min((lin, still), key=lambda s: s.mean)
+        if math.isfinite(err) and err < lin.mean and err < still.mean:
+            parts.append(f"at {h:g} s beats the best linear model ({lin.name}) by "
+                         f"{_ratio(lin.mean, err)} and no motion by {_ratio(still.mean, err)}")
+        else:
+            parts.append(f"at {h:g} s LOSES to {best.name} (its error is "
+                         f"{_ratio(err, best.mean)} {best.name}'s)")
+    return f"{model}: " + "; ".join(parts)
