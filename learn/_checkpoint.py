@@ -180,10 +180,13 @@ def load_tree(path: str | Path, like):
 
 
 def write_history(path: str | Path, rows: list[dict], *, record: bool = False) -> Path:
-    """``history.csv``: epoch, train_loss, test_loss, seconds, phase."""
+    """``history.csv``: epoch, train_loss, test_loss, seconds, phase (and validation_loss, the
+    loss that picked the model, in a run that held out validation trajectories)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["epoch", "train_loss", "test_loss", "seconds", "phase"])
+    val = any("validation_loss" in r for r in rows)
+    w.writerow(["epoch", "train_loss", "test_loss", "seconds", "phase"]
+               + (["validation_loss"] if val else []))
     for r in rows:
         w.writerow(
             [
@@ -192,7 +195,7 @@ def write_history(path: str | Path, rows: list[dict], *, record: bool = False) -
                 repr(float(r["test_loss"])),
                 f"{r['seconds']:.3f}",
                 r.get("phase", "adamw"),
-            ]
+            ] + ([repr(float(r.get("validation_loss", "nan")))] if val else [])
         )
     return atomic_write_text(path, buf.getvalue(), record=record)
 
@@ -207,6 +210,8 @@ def read_history(path: str | Path) -> list[dict]:
             "test_loss": float(r["test_loss"]),
             "seconds": float(r["seconds"]),
             "phase": r.get("phase", "adamw"),
+            **({"validation_loss": float(r["validation_loss"])} if r.get("validation_loss")
+               else {}),
         }
         for r in rows
     ]

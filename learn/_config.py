@@ -67,6 +67,9 @@ class TrainConfig:
     differences of p, with the recorded q̇ fitting q̇ = M̂⁻¹(q) p at every sample) or "rollout"
     (the multi-step loss: eq. 8/9 averaged over ``rollout_steps`` RK4 steps simulated from the
     first state of windows of consecutive samples of one trajectory; minibatches of windows).
+    ``rollout_schedule`` (loss "rollout"): increasing horizons H_1 < ... < H_S in steps; stage i
+    trains at H_i from epoch ceil(i * epochs / S) + 1 on, the held-out loss and L-BFGS at H_S
+    (= ``rollout_steps``: :func:`learn._objective.rollout_stage`).
     ``equilibrium_weight`` / ``force_weight`` > 0 add the static-equilibrium labels of the data
     file (:func:`learn._losses.label_loss`; Section VI-B's "additional labels") to the training
     loss (not to the test loss, which stays eq. 8/9/10 alone). ``test_with`` "pair" scores the
@@ -81,7 +84,9 @@ class TrainConfig:
     ``split_seed`` draws the split, the ``samples`` subset of training pairs and the
     ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each;
     a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly
-    to evaluate every few epochs).
+    to evaluate every few epochs). ``validation``: training trajectories held out to pick the
+    model (the best epoch, patience, overfit, target loss: then on the validation loss, and the
+    test loss is only recorded), see :func:`learn._splits.validation_split`.
     ``patience``: stop a member after that many evaluations without a better test loss (None:
     never); the saved model is the one with the best test loss. ``overfit``: stop a member
     once its test loss has stayed above ``overfit`` times its best for ``overfit_evals``
@@ -119,6 +124,10 @@ class TrainConfig:
                    "rollout: eq. 8/9 averaged over rollout-steps steps", LOSSES)
     loss_weight: float = _f(1.0, "loss", "lambda of eqs. 8/9")
     rollout_steps: int = _f(5, "loss", "steps per window of loss 'rollout' (multi-step loss)")
+    rollout_schedule: tuple[int, ...] | None = _f(
+        None, "loss", "horizons in steps of loss 'rollout', e.g. 1,4,16,64: stage i of S trains "
+        "at the i-th horizon from epoch i*epochs/S on (spread evenly over the AdamW epochs); "
+        "the held-out loss and L-BFGS use the last (default: rollout-steps throughout)")
     substeps: int = _f(1, "loss", "RK4 sub-steps per pair")
     input_hold: str = _f("constant", "loss", "the input between two samples: held or "
                          "interpolated linearly", INPUT_HOLDS)
@@ -162,6 +171,12 @@ class TrainConfig:
     test_trajectories: tuple[int, ...] | int | float | None = _f(
         None, "split", "held-out trajectories: ids, a count, a fraction (default: the file's "
         "recorded test split, else 20%)")
+    validation: tuple[int, ...] | int | float | str | None = _f(
+        None, "split", "training trajectories held out to pick the best epoch and decide "
+        "patience, overfit, target loss (test ones are then only scored): ids, a count, a "
+        "fraction, 0 (none: the test loss picks) or auto (20% when 3 or more train); "
+        "default: auto on recordings of softpinn import, none on simulated data (their spec's "
+        "split)")
     split_seed: int = _f(0, "split", "seed of the random train/test split of trajectories")
     samples: int | None = _f(None, "split", "train on N randomly chosen pairs (default: all)")
     test_samples: int | None = _f(None, "split", "evaluate the test loss on N randomly chosen "
@@ -192,14 +207,8 @@ class TrainConfig:
                 or self.batch_size < 1):
             raise UserError(f"batch_size: expected an integer >= 1 or None (auto), got "
                             f"{self.batch_size!r}")
-        pos_int = (
-            "substeps",
-            "seeds",
-            "eval_every",
-            "checkpoint_every",
-            "rollout_steps",
-            "overfit_evals",
-        )
+        pos_int = ("substeps", "seeds", "eval_every", "checkpoint_every", "rollout_steps",
+                   "overfit_evals")
         for name in pos_int + ("lbfgs_chunk",):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
@@ -270,6 +279,7 @@ class TrainConfig:
             raise UserError(f"init: expected a run folder, got {self.init!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
+        self._check_validation()
         self._check_accel_weights()
         if self.accel_labels != "recorded" and self.loss != "accel":
             raise UserError(
@@ -277,6 +287,7 @@ class TrainConfig:
             )
         self._check_momenta()
         self._check_accel_space()
+        self._check_rollout_schedule()
         if self.test_with == "pair" and self.loss == "rollout":
             raise UserError("test_with: 'pair' scores held-out pairs; loss 'rollout' holds out "
                             "windows, which the rollout loss itself scores")
@@ -290,6 +301,44 @@ class TrainConfig:
                 "loss: 'accel' (eq. 10) on momentum data needs accel_labels 'differences' "
                 "(the file stores q̇ but no ṗ; ṗ is then differenced from p)"
             )
+
+    def _check_rollout_schedule(self):
+        """``rollout_schedule``: None, or increasing horizons >= 1 of loss "rollout"; its last
+        is the windows' length, ``rollout_steps`` (left at its default 5, it is set to it)."""
+        h = self.rollout_schedule
+        if h is None:
+            return
+        if isinstance(h, list):
+            h = tuple(h)
+        flag = "rollout_schedule (--rollout-schedule)"
+        if not isinstance(h, tuple) or not h or not all(
+                isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in h):
+            raise UserError(f"{flag}: expected horizons in steps, integers >= 1 such as "
+                            f"1,4,16,64, got {self.rollout_schedule!r}")
+        if any(b <= a for a, b in zip(h, h[1:], strict=False)):
+            raise UserError(f"{flag}: the horizons must increase, got {','.join(map(str, h))}")
+        if self.loss != "rollout":
+            raise UserError(f"{flag}: a schedule of horizons is for loss 'rollout' (--loss "
+                            f"rollout), not {self.loss!r}")
+        if self.rollout_steps not in (5, h[-1]):
+            raise UserError(f"{flag}: its last horizon ({h[-1]}) is the rollout's length; "
+                            f"leave out --rollout-steps ({self.rollout_steps}) or give {h[-1]}")
+        object.__setattr__(self, "rollout_schedule", h)
+        object.__setattr__(self, "rollout_steps", h[-1])
+
+    def _check_validation(self):
+        """``validation``'s type (its fit to the data: :func:`learn._splits.validation_split`)."""
+        v = self.validation
+        if isinstance(v, list):
+            object.__setattr__(self, "validation", v := tuple(v))
+        ok = (v is None or v == "auto"
+              or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+              or (isinstance(v, float) and 0.0 < v < 1.0)
+              or (isinstance(v, tuple) and len(v) > 0 and all(
+                  isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in v)))
+        if not ok:
+            raise UserError(f"validation: expected 'auto', a count >= 0, a fraction in (0, 1) "
+                            f"or trajectory ids (--validation), got {v!r}")
 
     def _check_accel_space(self):
         """``accel_space`` "force" (eq. 4's residual, M̂ q̈ + Ĉ q̇ + D̂ q̇ + Ĝ - A u): loss
@@ -381,6 +430,8 @@ class TrainConfig:
         d["model"] = self.model.to_dict()
         if isinstance(d["test_trajectories"], tuple):
             d["test_trajectories"] = list(d["test_trajectories"])
+        if isinstance(d["validation"], tuple):
+            d["validation"] = list(d["validation"])
         return d
 
     @classmethod
@@ -393,5 +444,7 @@ class TrainConfig:
         kw["model"] = ModelConfig.from_dict(d["model"])
         if isinstance(kw.get("test_trajectories"), list):
             kw["test_trajectories"] = tuple(kw["test_trajectories"])
+        if isinstance(kw.get("validation"), list):
+            kw["validation"] = tuple(kw["validation"])
         return cls(**kw)
 

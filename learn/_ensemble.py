@@ -19,6 +19,7 @@ from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn._members import select_members, stack, unstack
 from softpinn.learn._models import make_model
+from softpinn.learn._objective import note_range, range_metrics, rollout_stage
 from softpinn.learn._programs import Programs
 from softpinn.learn._rundir import load_run, loss_plot, member_dir
 from softpinn.learn._stop import Stop, StopReason
@@ -75,8 +76,11 @@ class DeferredInterrupt:
 class MemberGroup:
     """K members trained together as one stacked model (K = 1 for a single run)."""
 
-    def __init__(self, prog: Programs, seeds, ckpt_path: Path, header_base: dict):
+    def __init__(self, prog: Programs, seeds, ckpt_path: Path, header_base: dict,
+                 test_eval: Callable | None = None):
+        # prog.eval_fn: the loss that picks (validation's, if any); test_eval: then test's, noted
         self.prog = prog
+        self.test_eval = test_eval
         self.seeds = list(seeds)
         self.K = len(self.seeds)
         self.ckpt_path = ckpt_path
@@ -93,6 +97,7 @@ class MemberGroup:
         self.epoch = 0  # epochs completed
         self.best_loss = np.full(self.K, np.inf)
         self.best_epoch = np.zeros(self.K, dtype=int)
+        self.best_test = np.full(self.K, np.nan)  # the test loss at best_epoch (validation)
         self.bad = np.zeros(self.K, dtype=int)
         self.over = np.zeros(self.K, dtype=int)  # evaluations in a row above overfit x best
         self.active = np.ones(self.K, dtype=bool)
@@ -113,15 +118,14 @@ class MemberGroup:
             "epoch": self.epoch,
             "best_loss": [float(x) for x in self.best_loss],
             "best_epoch": self.best_epoch.tolist(),
+            **({"best_test": self.best_test.tolist()} if self.test_eval else {}),
             "bad": self.bad.tolist(),
             "over": self.over.tolist(),
             "active": self.active.tolist(),
             "stopped": [s.detail for s in self.stops],
             "stop_reason": [s.reason.value for s in self.stops],
             "history": self.history,
-            "seconds": self.seconds,
-            "adam_done": self.adam_done,
-            "lbfgs_done": self.lbfgs_done,
+            "seconds": self.seconds, "adam_done": self.adam_done, "lbfgs_done": self.lbfgs_done,
         }
 
     def save(self):
@@ -138,6 +142,7 @@ class MemberGroup:
         self.epoch = int(header["epoch"])
         self.best_loss = np.array(header["best_loss"], dtype=float)
         self.best_epoch = np.array(header["best_epoch"], dtype=int)
+        self.best_test = np.array(header.get("best_test", [np.nan] * self.K), dtype=float)
         self.bad = np.array(header["bad"], dtype=int)
         self.over = np.array(header.get("over", [0] * self.K), dtype=int)
         self.active = np.array(header["active"], dtype=bool)
@@ -174,8 +179,11 @@ class MemberGroup:
 
     # -- bookkeeping shared by both phases
     def _record(self, epoch, train_loss, test_loss, phase, evaluate, params_prev, opt_prev):
-        """Update best/patience/history after a step; roll back diverged members."""
+        """Update best/patience/history after a step; roll back diverged members.
+        ``test_loss``: the loss that picks (validation, where the run has it)."""
         cfg = self.prog.config
+        info = (np.asarray(self.test_eval(self.params), dtype=float)
+                if evaluate and self.test_eval is not None else None)
         was_active = self.active.copy()
         train_loss = np.asarray(train_loss, dtype=float)
         test_loss = np.asarray(test_loss, dtype=float) if evaluate else None
@@ -195,6 +203,8 @@ class MemberGroup:
                 self.best = select_members(jnp.asarray(improved), self.params, self.best)
             self.best_loss = np.where(improved, test_loss, self.best_loss)
             self.best_epoch = np.where(improved, epoch, self.best_epoch)
+            if info is not None:
+                self.best_test = np.where(improved, info, self.best_test)
             if phase == "adamw":
                 self.bad = np.where(improved, 0, self.bad + self.active)
                 if cfg.patience is not None:
@@ -224,15 +234,11 @@ class MemberGroup:
             if bad_now[k] or not was_active[k]:
                 continue
             if test_loss is not None:
-                self.history[k].append(
-                    {
-                        "epoch": int(epoch),
-                        "train_loss": float(train_loss[k]),
-                        "test_loss": float(test_loss[k]),
-                        "seconds": round(self.seconds, 3),
-                        "phase": phase,
-                    }
-                )
+                held = ({"test_loss": float(test_loss[k])} if info is None else
+                        {"test_loss": float(info[k]), "validation_loss": float(test_loss[k])})
+                self.history[k].append({"epoch": int(epoch), "train_loss": float(train_loss[k]),
+                                        **held, "seconds": round(self.seconds, 3),
+                                        "phase": phase})
         return bad_now
 
     def run(self, progress: Callable | None, label: str):
@@ -259,9 +265,9 @@ class MemberGroup:
                     raise KeyboardInterrupt
                 e = self.epoch + 1
                 prev_p, prev_s = self.params, self.opt_state
-                new_p, new_s, tr = prog.epoch_fn(
-                    self.params, self.opt_state, self.keys, self.epoch, jnp.asarray(self.active)
-                )
+                new_p, new_s, tr, out_of_range = prog.epoch_step(  # rollout_schedule's stage
+                    self.params, self.opt_state, self.keys, self.epoch, jnp.asarray(self.active),
+                    horizon=rollout_stage(cfg, e))
                 evaluate = e % cfg.eval_every == 0 or e == cfg.epochs
                 te = prog.eval_fn(new_p) if evaluate else None
                 tr = np.asarray(tr)
@@ -273,6 +279,7 @@ class MemberGroup:
                 t_last = now
                 self.params, self.opt_state = new_p, new_s
                 bad_now = self._record(e, tr, te, "adamw", evaluate, prev_p, prev_s)
+                note_range(self.history, e, rollout_stage(cfg, e), out_of_range)
                 self.epoch = e
                 self.consistent = True
                 if bad_now.any():
@@ -333,11 +340,8 @@ class MemberGroup:
         self.save()
 
     def _diverged_message(self) -> str:
-        which = [
-            f"seed {s}: {st.detail}"
-            for s, st in zip(self.seeds, self.stops, strict=True)
-            if st.reason is StopReason.DIVERGED
-        ]
+        which = [f"seed {s}: {st.detail}" for s, st in zip(self.seeds, self.stops, strict=True)
+                 if st.reason is StopReason.DIVERGED]
         return (
             f"training stopped: the loss became NaN/inf ({'; '.join(which)}); "
             f"the last good checkpoint is kept in {self.ckpt_path.parent}; "
@@ -345,11 +349,8 @@ class MemberGroup:
         )
 
     def _non_finite_start_message(self, tr0, te0, bad0) -> str:
-        which = [
-            f"seed {s}: train loss {tr0[k]:.3g}, test loss {te0[k]:.3g}"
-            for k, s in enumerate(self.seeds)
-            if bad0[k]
-        ]
+        which = [f"seed {s}: train loss {tr0[k]:.3g}, test loss {te0[k]:.3g}"
+                 for k, s in enumerate(self.seeds) if bad0[k]]
         return (
             "training cannot start: the untrained model's loss is not finite "
             f"({'; '.join(which)}); "
@@ -378,7 +379,6 @@ class MemberGroup:
 
     def member_model(self, k: int):
         return eqx.combine(unstack(self.best, k), self.prog.static)
-
 
 
 def initial_model(run_dir: str, model_config):
@@ -420,9 +420,11 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
     model = g.member_model(k)
     hist = g.history[k]
     last = hist[-1] if hist else {"train_loss": float("nan"), "test_loss": float("nan")}
+    picked = {"best_test_loss": float(g.best_loss[k])} if g.test_eval is None else {
+        "best_test_loss": float(g.best_test[k]), "best_validation_loss": float(g.best_loss[k])}
     metrics = {
         "seed": seed,
-        "best_test_loss": float(g.best_loss[k]),
+        **picked,  # with validation: the kept model's test loss, and its validation loss
         "best_epoch": int(g.best_epoch[k]),
         "final_train_loss": last["train_loss"],
         "final_test_loss": last["test_loss"],
@@ -433,6 +435,7 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
         "seconds": round(g.seconds, 3),
         "train_pairs": n_train,
         "test_pairs": n_test,
+        **range_metrics(hist),
     }
     if interrupted and g.stops[k].reason is StopReason.RUNNING:
         lbfgs = f" + {int(g.lbfgs_done)} L-BFGS iterations" if g.lbfgs_done else ""
@@ -444,5 +447,4 @@ def finish_member(g: MemberGroup, k, seed, run_dir, K, n_train, n_test, *,
     ckpt.atomic_write_json(mdir / "metrics.json", metrics, record=True)
     loss_plot(mdir, [hist], None)
     return MemberResult(seed=seed, run_dir=mdir, model=model, metrics=metrics, history=hist)
-
 

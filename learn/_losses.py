@@ -7,7 +7,9 @@
   ẋ = (q̇, q̈) and the first half is q̇ itself, so this is exactly ‖q̈ - q̂̈‖²; for the
   Hamiltonian and the black box it also fits q̇ (resp. the whole derivative).
 * :func:`rollout_loss`: the mean of the same per-sample error over h consecutive steps
-  simulated from the first state of each window.
+  simulated from the first state of each window (multiple shooting); with
+  :func:`rollout_loss_and_range` also the fraction of windows whose rollout leaves the training
+  data's range or is not finite (issue 43: reported, never a silent number).
 * :func:`label_loss`: static-equilibrium labels G(q*) = A(q*) u* (and the force f* there),
   added to any of the above in training when ``TrainConfig.equilibrium_weight`` or
   ``force_weight`` > 0.
@@ -36,8 +38,11 @@ __all__ = [
     "pair_loss",
     "accel_errors",
     "accel_loss",
+    "rollout_predictions",
     "rollout_errors",
     "rollout_loss",
+    "outside_range",
+    "rollout_loss_and_range",
     "batch_vector_field",
     "Equilibria",
     "equilibrium_forces",
@@ -184,6 +189,33 @@ def data_force_weights(model, data, traj_ids, labels: str = "differences") -> tu
     return tuple(float(w) for w in force_weights(model, data.q[rows], qdd[rows]))
 
 
+def _check_horizon(model, x, horizon):
+    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
+        raise UserError(f"horizon must be an integer >= 1, got {horizon!r}")
+    if x.ndim != 3 or x.shape[1] < horizon + 1:
+        raise UserError(
+            f"windows.x must have shape (B, >= {horizon + 1}, {2 * model.config.n}), got {x.shape}"
+        )
+
+
+def rollout_predictions(model, windows: Windows, *, horizon: int, substeps=1,
+                        input_hold="constant"):
+    """x̂ (B, horizon + 1, 2n): each window simulated from its first state with its own inputs
+    and times over its first ``horizon`` steps (any model kind: a Hamiltonian network on
+    (q, q̇) is stepped through its momenta, :func:`learn._integrate.step`)."""
+    x, u, t = windows
+    _check_horizon(model, x, horizon)
+    x, u, t = x[:, : horizon + 1], u[:, : horizon + 1], t[:, : horizon + 1]
+    one = lambda xw, uw, tw: rollout(model, xw[0], uw, tw, substeps=substeps, input_hold=input_hold)
+    return jax.vmap(one)(x, u, t)
+
+
+def _window_errors(model, windows: Windows, xhat, horizon: int, weight):
+    x = jnp.asarray(windows.x[:, : horizon + 1], xhat.dtype)
+    err = state_error(x[:, 1:], xhat[:, 1:], model.config.n, weight)
+    return jnp.mean(err, axis=1)
+
+
 def rollout_errors(
     model, windows: Windows, *, horizon: int, weight=1.0, substeps=1, input_hold="constant"
 ):
@@ -192,18 +224,9 @@ def rollout_errors(
     Each window is simulated from its first state with its own inputs and times; only the first
     ``horizon + 1`` samples of each window are used.
     """
-    x, u, t = windows
-    if isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1:
-        raise UserError(f"horizon must be an integer >= 1, got {horizon!r}")
-    if x.ndim != 3 or x.shape[1] < horizon + 1:
-        raise UserError(
-            f"windows.x must have shape (B, >= {horizon + 1}, {2 * model.config.n}), got {x.shape}"
-        )
-    x, u, t = x[:, : horizon + 1], u[:, : horizon + 1], t[:, : horizon + 1]
-    one = lambda xw, uw, tw: rollout(model, xw[0], uw, tw, substeps=substeps, input_hold=input_hold)
-    xhat = jax.vmap(one)(x, u, t)
-    err = state_error(jnp.asarray(x, xhat.dtype)[:, 1:], xhat[:, 1:], model.config.n, weight)
-    return jnp.mean(err, axis=1)
+    xhat = rollout_predictions(model, windows, horizon=horizon, substeps=substeps,
+                               input_hold=input_hold)
+    return _window_errors(model, windows, xhat, horizon, weight)
 
 
 def rollout_loss(
@@ -220,6 +243,27 @@ def rollout_loss(
             input_hold=input_hold,
         )
     )
+
+
+def outside_range(xhat, n: int, low, high):
+    """Per window (B,): whether its rollout x̂ (B, h + 1, 2n) is not finite anywhere or its q̂
+    leaves the box [low, high] (n,) anywhere (:func:`learn._objective.training_box`)."""
+    q = xhat[..., :n]
+    low, high = jnp.asarray(low)[None, None, :], jnp.asarray(high)[None, None, :]
+    inside = jnp.all((q >= low) & (q <= high), axis=(1, 2))
+    return ~(inside & jnp.all(jnp.isfinite(xhat), axis=(1, 2)))
+
+
+def rollout_loss_and_range(model, windows: Windows, box, *, horizon: int, weight=1.0,
+                           substeps=1, input_hold="constant"):
+    """(:func:`rollout_loss`, the fraction of the windows whose rollout leaves ``box`` = (low,
+    high) or is not finite): the loss of a training step and what it says about range, from one
+    simulation."""
+    xhat = rollout_predictions(model, windows, horizon=horizon, substeps=substeps,
+                               input_hold=input_hold)
+    loss = jnp.mean(_window_errors(model, windows, xhat, horizon, weight))
+    out = outside_range(xhat, model.config.n, box[0], box[1])
+    return loss, jnp.mean(out.astype(xhat.dtype))
 
 
 # ------------------------------------------------------------------- equilibrium labels

@@ -8,7 +8,9 @@ jitted call runs one whole epoch: the minibatch permutation is drawn inside, and
 steps through ``floor(N / B)`` minibatches of exactly B pairs (the remainder is dropped; it is a
 different random remainder every epoch), so no shape ever changes and nothing recompiles. The
 permutation key of epoch e is ``fold_in(PRNGKey(seed), e)``, which makes resumed runs identical
-to uninterrupted ones.
+to uninterrupted ones. A ``rollout_schedule`` compiles one epoch program per horizon (the
+horizon is static), each once, when its stage begins; with loss "rollout" an epoch also returns
+the fraction of its windows whose rollout left the training data's range (issue 43).
 """
 
 from __future__ import annotations
@@ -25,7 +27,14 @@ from softpinn.learn._devices import batch_sharding, local_copy, replicated
 from softpinn.learn._losses import Equilibria, Pairs
 from softpinn.learn._members import over_members, select_members
 from softpinn.learn._models import make_model
-from softpinn.learn._objective import errors_function, labels_key, loss_function, make_optimizer
+from softpinn.learn._objective import (
+    errors_function,
+    labels_key,
+    loss_and_range_function,
+    loss_function,
+    make_optimizer,
+    training_box,
+)
 
 
 def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
@@ -64,38 +73,10 @@ class Programs:
             return loss_of(eqx.combine(params, static), batch_pairs)
 
         self._loss_params = loss_params
-        grad_fn = jax.value_and_grad(loss_params)
-
-        sharding = batch_sharding(devices)
-
-        def take(a, ix):
-            b = a[ix]
-            return b if sharding is None else jax.lax.with_sharding_constraint(b, sharding)
-
-        def one_epoch(params, opt_state, key, epoch, lr, train):
-            perm = jax.random.permutation(jax.random.fold_in(key, epoch), n_train)
-            idx = perm[: self.steps * batch].reshape(self.steps, batch)
-
-            def body(carry, ix):
-                p, s = carry
-                b = jax.tree.map(lambda a: take(a, ix), train)
-                loss, g = grad_fn(p, b)
-                updates, s = self.opt.update(g, s, p)
-                p = optax.apply_updates(p, jax.tree.map(lambda u: lr * u, updates))
-                return (p, s), loss
-
-            (params, opt_state), losses = jax.lax.scan(body, (params, opt_state), idx)
-            return params, opt_state, jnp.mean(losses)
-
-        @jax.jit
-        def epoch_fn(params, opt_state, keys, epoch, active, lr, train):
-            new_p, new_s, loss = over_members(one_epoch, (0, 0, 0, None, None, None))(
-                params, opt_state, keys, epoch, lr, train
-            )
-            return (select_members(active, new_p, params),
-                    select_members(active, new_s, opt_state), loss)
-
-        self._epoch_fn = epoch_fn
+        self._labels = labels
+        self._epoch_fns: dict[int | None, object] = {}
+        self.rollout = config.loss == "rollout"
+        self._epoch_fn = self._epoch_program(config.rollout_steps if self.rollout else None)
 
         def weighted_sum_of(errors_of):
             def weighted_sum(params, chunk, w):
@@ -144,6 +125,56 @@ class Programs:
 
         self.lbfgs_init = jax.jit(lbfgs_init)
 
+    def _epoch_program(self, horizon: int | None):
+        """The jitted epoch of the loss at ``horizon`` rollout steps (None: not loss "rollout"),
+        compiled once per horizon a rollout schedule reaches (the horizon is static): returns
+        (params, opt_state, mean loss (K,)), and with loss "rollout" also the mean fraction
+        (K,) of the epoch's windows whose rollout left the training data's range or is not
+        finite (:func:`learn._objective.training_box` of the training windows)."""
+        if horizon in self._epoch_fns:
+            return self._epoch_fns[horizon]
+        config, static, batch, n_train = self.config, self.static, self.batch, self.n_train
+        steps, opt, n = self.steps, self.opt, config.model.n
+        if horizon is None:
+            loss_of = loss_function(config, self._labels)
+            grad_fn = jax.value_and_grad(lambda p, b, box: loss_of(eqx.combine(p, static), b))
+        else:
+            loss_of = loss_and_range_function(config, self._labels, horizon)
+            grad_fn = jax.value_and_grad(
+                lambda p, b, box: loss_of(eqx.combine(p, static), b, box), has_aux=True)
+        sharding = batch_sharding(self.devices)
+
+        def take(a, ix):
+            b = a[ix]
+            return b if sharding is None else jax.lax.with_sharding_constraint(b, sharding)
+
+        def one_epoch(params, opt_state, key, epoch, lr, train):
+            perm = jax.random.permutation(jax.random.fold_in(key, epoch), n_train)
+            idx = perm[: steps * batch].reshape(steps, batch)
+            box = None if horizon is None else training_box(train.x, n)
+
+            def body(carry, ix):
+                p, s = carry
+                b = jax.tree.map(lambda a: take(a, ix), train)
+                value, g = grad_fn(p, b, box)
+                updates, s = opt.update(g, s, p)
+                p = optax.apply_updates(p, jax.tree.map(lambda u: lr * u, updates))
+                return (p, s), value
+
+            (params, opt_state), values = jax.lax.scan(body, (params, opt_state), idx)
+            return params, opt_state, jax.tree.map(jnp.mean, values)
+
+        @jax.jit
+        def epoch_fn(params, opt_state, keys, epoch, active, lr, train):
+            new_p, new_s, value = over_members(one_epoch, (0, 0, 0, None, None, None))(
+                params, opt_state, keys, epoch, lr, train
+            )
+            return (select_members(active, new_p, params),
+                    select_members(active, new_s, opt_state), value)
+
+        self._epoch_fns[horizon] = epoch_fn
+        return epoch_fn
+
     def with_data(self, config, train, test) -> Programs:
         """The same compiled functions for other arrays of the same shapes."""
         new = object.__new__(Programs)
@@ -154,6 +185,16 @@ class Programs:
         return new
 
     def epoch_fn(self, params, opt_state, keys, epoch, active):
+        """One AdamW epoch at the run's horizon: (params, opt_state, mean loss (K,))."""
+        return self.epoch_step(params, opt_state, keys, epoch, active)[:3]
+
+    def epoch_step(self, params, opt_state, keys, epoch, active, horizon: int | None = None):
+        """One AdamW epoch: (params, opt_state, mean loss (K,), out-of-range fraction (K,) of
+        loss "rollout"'s windows, else None); ``horizon``: the rollout's steps this epoch
+        (a stage of ``rollout_schedule``; default ``rollout_steps``)."""
+        if self.rollout and horizon is None:
+            horizon = self.config.rollout_steps
+        fn = self._epoch_program(horizon if self.rollout else None)
         lr = jnp.asarray(self.config.lr, jax.tree.leaves(self.train)[0].dtype)
         args = (params, opt_state, keys, epoch, active, lr)
         if self.devices > 1 and jax.process_count() > 1:
@@ -162,9 +203,11 @@ class Programs:
             # so that the rest of the engine (checkpoints, losses) works on local arrays
             if getattr(self, "_global_train", None) is None:
                 self._global_train = replicated(self.train, self.devices)
-            out = self._epoch_fn(*replicated(args, self.devices), self._global_train)
-            return local_copy(out)
-        return self._epoch_fn(*args, self.train)
+            out = local_copy(fn(*replicated(args, self.devices), self._global_train))
+        else:
+            out = fn(*args, self.train)
+        p, s, value = out
+        return (p, s, *value) if self.rollout else (p, s, value, None)
 
     def _set_eval_data(self, train, test):
         self._train_chunks = _chunked(train, self.eval_size)
@@ -201,6 +244,7 @@ class ProgramCache:
         "lr",
         "ensemble",
         "test_trajectories",
+        "validation",
         "split_seed",
         "samples",
         "patience",

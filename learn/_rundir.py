@@ -80,6 +80,8 @@ def mean_history(histories):
                 "epoch": e,
                 "train_loss": float(np.mean([r["train_loss"] for r in rs])),
                 "test_loss": float(np.mean([r["test_loss"] for r in rs])),
+                **({"validation_loss": float(np.mean([r["validation_loss"] for r in rs]))}
+                   if all("validation_loss" in r for r in rs) else {}),
                 "seconds": max(r["seconds"] for r in rs),
                 "phase": rs[0]["phase"],
             }
@@ -88,14 +90,21 @@ def mean_history(histories):
 
 
 def aggregate_metrics(members, mode, base) -> dict:
+    """Mean ± std over the members; the best member is the one of the lowest best validation
+    loss where the run held out validation trajectories (the test loss never picks), else of
+    the lowest best test loss."""
     best = [m.metrics["best_test_loss"] for m in members]
+    val = [m.metrics["best_validation_loss"] for m in members
+           if "best_validation_loss" in m.metrics]
+    picks = val if len(val) == len(members) else best
     return {
         "seeds": [m.seed for m in members],
         "ensemble_mode": mode,
         "best_test_loss": mean_std(best),
+        **({"best_validation_loss": mean_std(val)} if picks is val else {}),
         "final_train_loss": mean_std([m.metrics["final_train_loss"] for m in members]),
         "seconds": mean_std([m.metrics["seconds"] for m in members]),
-        "best_member": members[int(np.argmin(best))].seed,
+        "best_member": members[int(np.argmin(picks))].seed,
         "pairs": base["pairs"],
         "train_pairs": base["pairs"]["train"],
         "test_pairs": base["pairs"]["test"],
@@ -131,6 +140,10 @@ def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:
     if not run_dir.is_dir():
         raise UserError(f"run directory {run_dir}: no such directory")
     info = ckpt.read_json(run_dir / "config.json")
+    model = info.get("model") if isinstance(info, dict) else None
+    if isinstance(model, dict) and model.get("kind") == "linear":  # train --model linear
+        raise UserError(f"run {run_dir}: a linear baseline run has no learned matrices; "
+                        "'softpinn predict' scores it (train a network to analyze or export)")
     if info.get("format") != FORMAT:
         raise UserError(f"{run_dir}/config.json: not a softpinn run directory")
     if "members" in info:

@@ -53,8 +53,8 @@ from softpinn.learn._ensemble import (
 from softpinn.learn._losses import equilibria_of
 from softpinn.learn._members import resolve_ensemble_mode
 from softpinn.learn._models import ensure_dtype
-from softpinn.learn._objective import to_pairs, to_windows
-from softpinn.learn._programs import PROGRAMS, ProgramCache
+from softpinn.learn._objective import check_rollout_schedule, to_pairs, to_windows
+from softpinn.learn._programs import PROGRAMS, ProgramCache, _chunked
 from softpinn.learn._rundir import (
     LoadedRun,
     aggregate_metrics,
@@ -65,7 +65,7 @@ from softpinn.learn._rundir import (
     mean_history,
     member_dir,
 )
-from softpinn.learn._splits import split_trajectories
+from softpinn.learn._splits import split_trajectories, validation_split
 from softpinn.learn._velocity import resolve_momenta
 from softpinn.progress import ProgressFn
 
@@ -97,8 +97,32 @@ class TrainResult:
 
     @property
     def model(self):
-        """The best member's model (lowest best test loss)."""
-        return min(self.members, key=lambda r: r.metrics["best_test_loss"]).model
+        """The best member's model (lowest best validation loss where the run held out
+        validation trajectories, else lowest best test loss)."""
+        return min(self.members, key=lambda r: r.metrics.get(
+            "best_validation_loss", r.metrics["best_test_loss"])).model
+
+
+def _held_out(data, ids, config, state, dtype):
+    """The held-out pairs (windows of loss "rollout") of trajectories ``ids``, as numpy and as
+    the arrays the programs take (at most ``config.test_samples`` of them)."""
+    if config.loss == "rollout":
+        held = make_windows(data, ids, horizon=config.rollout_steps, state=state,
+                            samples=config.test_samples, seed=config.split_seed)
+        return held, to_windows(held, dtype)
+    held = make_pairs(data, ids, state=state, samples=config.test_samples,
+                      seed=config.split_seed, accel=config.accel_labels)
+    if config.loss != "accel":
+        held = held._replace(xdot0=None)
+    return held, to_pairs(held, dtype)
+
+
+def _test_evaluator(prog, pairs, count):
+    """The test loss of ``count`` held-out ``pairs`` with the run's compiled evaluation (the
+    chunks have the programs' one shape: nothing compiles again), for a run whose validation
+    loss picks the model."""
+    chunks = _chunked(pairs, prog.eval_size)
+    return lambda params: prog._evaluate(prog._eval_test_chunk, params, chunks, count)
 
 
 def _remove_run(run_dir: Path, seeds) -> None:
@@ -109,15 +133,15 @@ def _remove_run(run_dir: Path, seeds) -> None:
     ckpt.remove_written(run_dir)
 
 
-def _member_groups(prog, seeds, mode, run_dir) -> list[MemberGroup]:
-    """One group of all members (vmap) or one group per member (sequential)."""
+def _member_groups(prog, seeds, mode, run_dir, test_eval=None) -> list[MemberGroup]:
+    """One group of all members (vmap) or one group per member (sequential); ``test_eval``:
+    the test loss of a run whose validation loss picks (:class:`learn._ensemble.MemberGroup`)."""
     K = len(seeds)
+    head = {"format": FORMAT}
     if mode == "vmap":
-        return [MemberGroup(prog, seeds, run_dir / "checkpoint.eqx", {"format": FORMAT})]
-    return [
-        MemberGroup(prog, [s], member_dir(run_dir, s, K) / "checkpoint.eqx", {"format": FORMAT})
-        for s in seeds
-    ]
+        return [MemberGroup(prog, seeds, run_dir / "checkpoint.eqx", head, test_eval)]
+    return [MemberGroup(prog, [s], member_dir(run_dir, s, K) / "checkpoint.eqx", head, test_eval)
+            for s in seeds]
 
 
 # ---------------------------------------------------------------------------------- resume
@@ -234,36 +258,40 @@ def train(
     ensure_dtype(config.model.dtype)
     dtype = jnp.dtype(config.model.dtype)
 
+    note = None
     if resume and isinstance(stored.get("split"), dict):
         # the split the run was trained with, as it recorded it: a default that changed since
-        # (a recorded test split of the file instead of 20% at random) must not move it
+        # (a recorded test split of the file instead of 20% at random, validation trajectories
+        # held out since issue 43: a run without "validation" has none) must not move it
         train_ids = np.asarray(stored["split"]["train"], dtype=np.int64)
         test_ids = np.asarray(stored["split"]["test"], dtype=np.int64)
+        val_ids = np.asarray(stored["split"].get("validation", []), dtype=np.int64)
     else:
         train_ids, test_ids = split_trajectories(
             data, test=config.test_trajectories, seed=config.split_seed
         )
+        train_ids, val_ids, note = validation_split(data, train_ids, config.validation,
+                                                    seed=config.split_seed)
     state = config.model.state_kind
     if config.loss == "rollout":
+        check_rollout_schedule(config, data, train_ids)
         h = config.rollout_steps
         train_np = make_windows(
             data, train_ids, horizon=h, state=state, samples=config.samples, seed=config.split_seed
         )
-        test_np = make_windows(data, test_ids, horizon=h, state=state,
-                               samples=config.test_samples, seed=config.split_seed)
-        train_pairs, test_pairs = to_windows(train_np, dtype), to_windows(test_np, dtype)
+        train_pairs = to_windows(train_np, dtype)
     else:
-        accel = config.accel_labels
         train_np = make_pairs(
             data, train_ids, state=state, samples=config.samples, seed=config.split_seed,
-            accel=accel,
+            accel=config.accel_labels,
         )
-        test_np = make_pairs(data, test_ids, state=state, samples=config.test_samples,
-                             seed=config.split_seed, accel=accel)
         if config.loss != "accel":
             train_np = train_np._replace(xdot0=None)
-            test_np = test_np._replace(xdot0=None)
-        train_pairs, test_pairs = to_pairs(train_np, dtype), to_pairs(test_np, dtype)
+        train_pairs = to_pairs(train_np, dtype)
+    test_np, test_pairs = _held_out(data, test_ids, config, state, dtype)
+    # the pairs whose loss picks the model: the validation trajectories', where there are any
+    val_np, val_pairs = (_held_out(data, val_ids, config, state, dtype) if val_ids.size
+                         else (test_np, test_pairs))
     devices = resolve_devices(config.devices)
     batch = config.batch_for(train_np.count, devices)
     if not resume:
@@ -273,8 +301,9 @@ def train(
     labels = None
     if config.equilibrium_weight > 0 or config.force_weight > 0:
         labels = equilibria_of(data, dtype)  # refused with one line when the file has none
-    prog = programs.get(config, train_pairs, test_pairs, train_np.count, batch, devices,
+    prog = programs.get(config, train_pairs, val_pairs, train_np.count, batch, devices,
                         labels=labels)
+    test_eval = _test_evaluator(prog, test_pairs, test_np.count) if val_ids.size else None
 
     seeds = [config.seed + i for i in range(config.seeds)]
     mode = resolve_ensemble_mode(config.ensemble, config.seeds)
@@ -285,8 +314,11 @@ def train(
         "train": config.to_dict(),
         "model": config.model.to_dict(),
         "dataset": dataset_info(data),
-        "split": {"train": train_ids.tolist(), "test": test_ids.tolist()},
-        "pairs": {"train": train_np.count, "test": test_np.count, "batch": batch},
+        "split": {"train": train_ids.tolist(), "validation": val_ids.tolist(),
+                  "test": test_ids.tolist()},
+        "pairs": {"train": train_np.count, "test": test_np.count, "batch": batch,
+                  **({"validation": val_np.count} if val_ids.size else {})},
+        **({"notes": [note]} if note else {}),
         "devices": devices,
         "steps_per_epoch": prog.steps,
         "ensemble_mode": mode,
@@ -303,7 +335,7 @@ def train(
             for s in seeds if K > 1 else []:
                 mdir = member_dir(run_dir, s, K)
                 ckpt.atomic_write_json(mdir / "config.json", {**base, "seed": s}, record=True)
-        groups = _member_groups(prog, seeds, mode, run_dir)
+        groups = _member_groups(prog, seeds, mode, run_dir, test_eval)
     except BaseException:
         if not resume:  # nothing trained yet: leave nothing that blocks a rerun
             _remove_run(run_dir, seeds)

@@ -61,6 +61,10 @@ from softpinn.symbolic.spec._model_spec import ModelSpec, Segment, SpecError
 from softpinn.symbolic.spec._recipe import LOSS_KEYS, MODEL_KEYS
 from softpinn.symbolic.spec._sensor import SensorConfig, record, sensor_config, write_csv
 from softpinn.symbolic.spec._spec import list_presets, load_spec
+from softpinn.symbolic.standin._cosserat import QUICK as COSSERAT_QUICK
+from softpinn.symbolic.standin._cosserat import CosseratArm
+from softpinn.symbolic.standin._cosserat import RecordSettings as CosseratRecordSettings
+from softpinn.symbolic.standin._cosserat import record_settings as record_cosserat
 
 __all__ = [
     "_kernel",
@@ -72,6 +76,9 @@ __all__ = [
     "compile_functions",
     "CompilerWarning",
     "condition_numbers",
+    "COSSERAT_QUICK",
+    "CosseratArm",
+    "CosseratRecordSettings",
     "count_of",
     "data_config",
     "DatasetArrays",
@@ -108,6 +115,7 @@ __all__ = [
     "read_dataset",
     "read_derive_summary",
     "record",
+    "record_cosserat",
     "resample",
     "Segment",
     "select_trajectories",

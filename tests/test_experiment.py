@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 import pytest
 
@@ -96,6 +97,38 @@ def test_quick_run_writes_the_report_tables_and_figures(quick):
     assert "models at a time (`--jobs 2`)" in text
 
 
+def _baselines_at_the_networks_horizons(entry):
+    """Issue 43: no motion and the linear models on the same imported bending coordinates and
+    split, at the networks' horizons: 5 s, and the whole test trajectories with resets."""
+    bl = entry["baselines"]
+    pr = entry["models"]["lagrangian"]["predict"]
+    for way, key in (("short", "prediction_error"), ("reset", "reset_error")):
+        c = bl[way]
+        assert c["train_trajectories"] == entry["import"]["train"]
+        assert c["test_trajectories"] == entry["import"]["test"] == [10, 11]
+        assert {s["kind"] for s in c["scores"]} == {"no_motion", "arx", "linear2"}
+        assert {s["horizon"] for s in c["scores"]} == {pr[key]["horizon_s"]}
+        assert all(s["mean"] is None or s["mean"] >= 0 for s in c["scores"])
+    assert bl["reset_every_s"] == pr["reset_error"]["reset_every_s"] == 3.0
+
+
+def test_quick_run_reports_the_networks_beside_the_baselines(quick):
+    out = quick.out_dir
+    text = quick.report.read_text(encoding="utf-8")
+    assert "## The networks against no motion and linear models" in text
+    for way in ("short", "reset"):
+        assert (out / "tables" / f"baselines_{way}.csv").is_file()
+    head = "| sensor rate [Hz] | preprocessing | Lagrangian network | black box | no motion |"
+    assert text.count(head) == 2
+    # the opening verdict and the section say in how many combinations each network wins
+    assert text.count("beats both the best linear model and no motion in") == 4
+    # one verdict line per network and preprocessing at the paper's 5 Hz
+    for prep in PREPROCESSING:
+        for who in ("Lagrangian network", "black box"):
+            assert re.search(rf"^- {who}, {prep}: at 5 s (beats|LOSES).*; with the state reset "
+                             r"every 3 s, at [0-9.]+ s (beats|LOSES)", text, re.M), (who, prep)
+
+
 def test_quick_run_numbers_are_finite_or_marked_diverged(quick):
     results = json.loads((quick.out_dir / "results.json").read_text())["results"]
     assert list(results["rates"]) == ["5Hz", "20Hz"]
@@ -113,6 +146,7 @@ def test_quick_run_numbers_are_finite_or_marked_diverged(quick):
                 assert pr["prediction_error"]["horizon_s"] == 5.0
                 assert pr["reset_error"]["reset_every_s"] == 3.0
                 assert pr["test_error"]["mean"] is None or math.isfinite(pr["test_error"]["mean"])
+            _baselines_at_the_networks_horizons(entry)
             bend = entry["models"]["lagrangian"]["bending"]
             assert bend["points"] > 0 and set(bend["alpha"]["residual"]) == {"M", "D", "G", "A"}
     rec = results["rates"]["5Hz"]["record"]

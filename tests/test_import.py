@@ -326,3 +326,72 @@ def test_notes_on_units_and_a_file_given_twice(tmp_path):
     deg = write_csv(tmp_path / "deg.csv", {**good, "q0": np.degrees(good["q0"]) * 4})
     assert any(n.startswith("theta1 reaches") and "if these are degrees" in n
                for n in import_recordings([deg], "task3").notes)
+
+
+# --------------------------------------------------------------------------------------------
+# A hanging arm recorded in a z-up world (docs/import.md, "Recording a real arm")
+
+
+def qmul(a, b):
+    """Hamilton products a ⊗ b of quaternions (N, 4) or (4,), ordered (w, x, y, z)."""
+    a, b = np.broadcast_arrays(np.asarray(a, float), np.asarray(b, float))
+    w1, x1, y1, z1 = np.moveaxis(a, -1, 0)
+    w2, x2, y2, z2 = np.moveaxis(b, -1, 0)
+    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+                     w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+                     w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
+
+
+def qinv(q):
+    return np.asarray(q, float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+QX_PI = np.array([0.0, 1.0, 0.0, 0.0])  # the rotation by pi about x
+
+
+def test_a_hanging_arm_recorded_with_z_up_imports_with_the_documented_conversion(tmp_path):
+    """A hanging arm filmed by a tracker whose world z points up: the tip bends by theta toward
+    the world azimuth psi, so its tangent is (sin theta cos psi, sin theta sin psi, -cos theta)
+    in the world. The arm's base frame (what import expects: z along the straight arm, from base
+    to tip, i.e. down) is the world turned by pi about x: x_B = x_W, y_B = -y_W, z_B = -z_W, so
+    the bending there is dx = d theta cos psi, dy = -d theta sin psi. The raw reading q_raw (the
+    tracker's body frame, identity when the arm hangs straight) converts by
+    q_arm = q_x(pi) ⊗ q_raw ⊗ q_x(pi)^-1 = (w, x, -y, -z); in general
+    q_arm = q_x(pi) ⊗ q_raw ⊗ q_rest^-1 ⊗ q_x(pi)^-1 with q_rest the reading when the arm hangs
+    straight (a sensor mounted any way). Unconverted, the bending imports mirrored (dx flips)."""
+    t = np.linspace(0.0, 2.0, 201)
+    theta = 0.6 * np.sin(np.pi * t / 2.0) ** 2 + 0.05  # rad, away from 0 and pi
+    psi = 0.3 + 2.0 * t  # the bending direction turns about the arm
+    # the raw body rotation: the straight arm's tangent (0, 0, -1) turned by theta about the
+    # world axis (0, 0, -1) x t = (sin psi, -cos psi, 0): no twist, as constant curvature
+    axis = np.stack([np.sin(psi), -np.cos(psi), np.zeros_like(psi)], 1)
+    q_raw = np.hstack([np.cos(theta / 2)[:, None], np.sin(theta / 2)[:, None] * axis])
+    tangent = ori.quaternion_to_matrix(q_raw) @ np.array([0.0, 0.0, -1.0])
+    np.testing.assert_allclose(tangent, np.stack([np.sin(theta) * np.cos(psi),
+                                                  np.sin(theta) * np.sin(psi),
+                                                  -np.cos(theta)], 1), atol=1e-12)
+    q_arm = qmul(qmul(QX_PI, q_raw), qinv(QX_PI))
+    np.testing.assert_allclose(q_arm, q_raw * np.array([1.0, 1.0, -1.0, -1.0]), atol=1e-15)
+    # a sensor mounted with its z along the tangent and turned by 0.7 rad about it: the reading
+    # at rest q_rest removes the mounting
+    mount = qmul(QX_PI, np.array([np.cos(0.35), 0.0, 0.0, np.sin(0.35)]))
+    q_rest = mount
+    q_mounted = qmul(q_raw, mount)
+    q_general = qmul(qmul(qmul(QX_PI, q_mounted), qinv(q_rest)), qinv(QX_PI))
+    np.testing.assert_allclose(np.abs(np.sum(q_general * q_arm, 1)), 1.0, atol=1e-12)
+
+    d = 1.0  # task 4: a hanging one-segment arm with d = 1 (dx, dy in rad)
+    expected = np.stack([d * theta * np.cos(psi), -d * theta * np.sin(psi)], 1)
+    u = np.zeros((len(t), 3))
+    for name, quat in (("arm", q_arm), ("general", q_general), ("raw", q_raw)):
+        cols = {"t": t, "u0": u[:, 0], "u1": u[:, 1], "u2": u[:, 2]}
+        cols.update(zip(("qw", "qx", "qy", "qz"), np.asarray(quat).T, strict=True))
+        path = write_csv(tmp_path / f"{name}.csv", cols)
+        data = import_recordings([path], "task4", orientation_kind="quaternion").data
+        if name == "raw":  # unconverted: mirrored about the base's y-z plane, silently
+            np.testing.assert_allclose(data.q[:, 0], -expected[:, 0], atol=1e-9)
+            np.testing.assert_allclose(data.q[:, 1], expected[:, 1], atol=1e-9)
+        else:
+            np.testing.assert_allclose(data.q[:, :2], expected, atol=1e-9)
+            assert data.meta["import"]["max_twist_rad"] < 1e-9

@@ -97,6 +97,14 @@ def test_path_init_simulate_import_for_a_three_segment_arm(tmp_path, capsys, cap
         (["--segments", "2", "--planar", "--hanging"], "planar-pcc", 4, 4),
         (["--segments", "1", "--hanging", "--actuation", "generalized"], "spatial-pcc", 3, 3),
         (["--segments", "2", "--spatial", "--actuation", "tip-wrench"], "spatial-pcc", 6, 6),
+        (["--segments", "2", "--actuation", "chambers"], "spatial-pcc", 6, 6),
+        (["--segments", "1", "--hanging", "--actuation", "chambers", "--angles", "0", "90", "180",
+          "270"], "spatial-pcc", 3, 4),
+        (["--segments", "2", "--actuation", "torques"], "spatial-pcc", 6, 4),
+        (["--segments", "2", "--planar", "--actuation", "torques"], "planar-pcc", 4, 2),
+        (["--segments", "2", "--actuation", "tendons", "--inputs", "3"], "spatial-pcc", 6, 6),
+        (["--segments", "2", "--actuation", "tendons", "--angles", "45", "225"], "spatial-pcc",
+         6, 4),
     ],
 )
 def test_variants_load_and_plan(tmp_path, capsys, argv, kind, n, m):
@@ -123,8 +131,20 @@ def test_init_errors(tmp_path, capsys):
         (["init", "a b", "--segments", 1, "--out", tmp_path / "b.toml"],
          "name: use letters, digits, '_', '-' or '.', got 'a b'"),
         (["init", "a", "--segments", 1, "--planar", "--actuation", "tendon", "--out",
-          tmp_path / "b.toml"], "--actuation: a planar arm takes one of generalized, none, got "
-         "'tendon'"),
+          tmp_path / "b.toml"], "--actuation: a planar arm takes one of generalized, torques, "
+         "none, got 'tendon'"),
+        (["init", "a", "--segments", 1, "--actuation", "torques", "--inputs", 3, "--out",
+          tmp_path / "b.toml"], "--inputs: only --actuation tendons or chambers take a number "
+         "of inputs per segment; torques has a fixed number"),
+        (["init", "a", "--segments", 1, "--actuation", "chambers", "--inputs", 3, "--angles", 0,
+          120, "--out", tmp_path / "b.toml"], "--inputs: 3 inputs per segment but 2 angles; "
+         "give as many angles as inputs"),
+        (["init", "a", "--segments", 1, "--actuation", "chambers", "--angles", 0, 360, "--out",
+          tmp_path / "b.toml"], "--angles: two actuators at the same angle (mod 360), got "
+         "[0.0, 360.0]"),
+        (["init", "a", "--segments", 1, "--angles", 0, 90, "--actuation", "generalized",
+          "--out", tmp_path / "b.toml"], "--angles: only --actuation tendons or chambers are "
+         "placed at angles; generalized has none"),
         (["init", "a", "--segments", 1, "--out", tmp_path / "b.txt"],
          f"--out {tmp_path / 'b.txt'}: a spec file must end in .toml"),
     ]
@@ -134,6 +154,64 @@ def test_init_errors(tmp_path, capsys):
     assert out.read_text() == "mine\n"
     assert run(capsys, "init", "a", "--segments", 1, "--out", out, "--force")[0] == 0
     assert load_spec(out).name == "a"
+
+
+def test_chambers_push_away_and_stretch_with_the_documented_matrix(tmp_path, capsys):
+    """Three pneumatic chambers at 0/120/240 deg: the template's constant A is 1000 S (-cos a,
+    -sin a, 1) [N/kPa] per chamber on its own segment's (dx, dy, dL); a pressure in the chamber
+    at 0 deg bends the segment away from it (toward -x) and stretches it; the arm simulates."""
+    from softpinn.symbolic.model._true_model import TrueModel
+    from softpinn.symbolic.recorded._template import CHAMBER_AREA
+
+    out = tmp_path / "pneu.toml"
+    status, text, err = run(capsys, "init", "pneu", "--segments", 2, "--hanging", "--actuation",
+                            "chambers", "--angles", 0, 120, 240, "--out", out)
+    assert status == 0, err
+    assert "m = 6, actuation chambers (a constant 6 x 6 matrix)" in text
+    spec = load_spec(out)
+    assert spec.actuators_per_segment == 3 and "gauge pressures [kPa]" in out.read_text()
+    S = 1000 * CHAMBER_AREA
+    expected = np.zeros((6, 6))
+    for i in range(2):
+        for j, a in enumerate(np.radians([0, 120, 240])):
+            expected[3 * i:3 * i + 3, 3 * i + j] = S * np.array([-np.cos(a), -np.sin(a), 1.0])
+    tm = TrueModel(spec, compiled=False)
+    q = np.array([0.004, -0.002, 0.01, -0.003, 0.005, 0.0])
+    A = np.asarray(tm.A(q)).reshape(6, 6)
+    np.testing.assert_allclose(A, expected, rtol=1e-5, atol=1e-12)  # 6 digits, constant in q
+    # 10 kPa in chamber 1 of segment 2 from rest: the tip segment bends toward -x, stretches
+    z = np.zeros(6)
+    u = np.zeros(6)
+    u[3] = 10.0
+    qdd = np.asarray(tm.qdd(z, z, u)).ravel() - np.asarray(tm.qdd(z, z, 0 * u)).ravel()
+    assert qdd[3] < 0 and abs(qdd[4]) < 1e-9 * abs(qdd[3]) and qdd[5] > 0
+    npz = tmp_path / "pneu.npz"
+    status, _, err = run(capsys, "simulate", out, "--out", npz, "--trajectories", 2,
+                         "--duration", 0.2, "--no-compile", "--quiet")
+    assert status == 0, err
+    sim = read_dataset(npz)
+    assert sim.u.shape[1] == 6 and np.all(np.isfinite(sim.q))
+
+
+def test_tendons_at_angles_match_the_named_tendon_actuation():
+    """`--actuation tendons --angles 0 90 180 270` writes the constant matrix that actuation =
+    "tendon" derives as -(d l / dq)^T for four evenly spaced tendons (three segments, so the
+    routing through lower segments at (i - k) 180/a_dof deg is checked too); torques are 1/d."""
+    from softpinn.symbolic import write_template
+    from softpinn.symbolic.model._true_model import TrueModel
+
+    _, named = write_template("a", 3)
+    _, matrix = write_template("a", 3, actuation="tendons", angles=[0, 90, 180, 270])
+    assert named.actuation == "tendon" and isinstance(matrix.actuation, tuple)
+    q = np.random.default_rng(0).normal(0.0, 0.005, 9)
+    A_named = np.asarray(TrueModel(named, compiled=False).A(q)).reshape(9, 12)
+    A_matrix = np.asarray(TrueModel(matrix, compiled=False).A(q)).reshape(9, 12)
+    np.testing.assert_allclose(A_matrix, A_named, atol=1e-6)
+    _, torques = write_template("a", 2, actuation="torques")
+    A = np.asarray(TrueModel(torques, compiled=False).A(np.zeros(6))).reshape(6, 4)
+    d = torques.segments[0].actuator_radius
+    np.testing.assert_allclose(A[[0, 1, 3, 4]], np.eye(4) / d)
+    assert not A[[2, 5]].any()
 
 
 # --------------------------------------------------------------------------------------------
@@ -236,9 +314,10 @@ def test_reproduce_refuses_a_missing_spec_file(tmp_path, capsys):
     assert status == 2 and err.count("\n") == 1 and "nope.toml" in err, err
     assert not (tmp_path / "runs").exists()
     status, _, err = run(capsys, "reproduce", "task9", "--out", tmp_path / "runs")
-    assert status == 2 and err == ("softpinn: error: task: expected one of task1, task2, task3, "
-                                   "task4, task5, experiment, challenges or a spec file (.toml), "
-                                   "got 'task9'\n"), err
+    # the studies after the presets (experiment, challenges, cosserat, ...) are the registry's
+    assert status == 2 and err.startswith("softpinn: error: task: expected one of task1, task2, "
+                                          "task3, task4, task5, experiment, challenges"), err
+    assert err.endswith(" or a spec file (.toml), got 'task9'\n") and err.count("\n") == 1, err
 
 
 def test_a_full_run_of_ones_own_arm_takes_about_50000_steps(tmp_path):

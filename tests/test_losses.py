@@ -1,4 +1,5 @@
-"""learn._losses: eqs. 8-10 against hand computations, rollout loss, gradients, no retracing."""
+"""learn._losses: eqs. 8-10 against hand computations, rollout loss (and its out-of-range
+count), gradients, no retracing."""
 
 from __future__ import annotations
 
@@ -15,10 +16,13 @@ from softpinn.learn._losses import (
     Pairs,
     Windows,
     accel_loss,
+    outside_range,
     pair_errors,
     pair_loss,
     rollout_errors,
     rollout_loss,
+    rollout_loss_and_range,
+    rollout_predictions,
 )
 from softpinn.learn._models import ModelConfig, make_model
 
@@ -102,6 +106,40 @@ def test_rollout_loss_over_windows(getkey):
         rollout_loss(model, win, horizon=0)
     with pytest.raises(UserError, match="windows.x must have shape"):
         rollout_loss(model, win, horizon=h + 2)
+
+
+@pytest.mark.parametrize("kind", ["lagrangian", "hamiltonian", "blackbox"])
+def test_rollout_loss_and_range_for_every_kind(getkey, kind):
+    """Issue 43: the rollout loss and its out-of-range count work for every model kind (a
+    Hamiltonian network on (q, q̇) is stepped through its momenta) and have gradients."""
+    model = _model(getkey(), kind)
+    if kind == "hamiltonian":  # on velocities too: the windows hold (q, q̇)
+        model = make_model(ModelConfig(kind=kind, n=2, m=1, state_kind="velocity", **SMALL),
+                           key=getkey())
+    B, h = 4, 3
+    k = jax.random.split(getkey(), 3)
+    t = jnp.cumsum(jnp.full((B, h + 1), 0.02), axis=1)
+    win = Windows(0.1 * jax.random.normal(k[1], (B, h + 1, 4)),
+                  jax.random.normal(k[2], (B, h + 1, 1)), t)
+    wide = (jnp.full(2, -1e3), jnp.full(2, 1e3))
+    loss, frac = jax.jit(lambda w: rollout_loss_and_range(model, w, wide, horizon=h))(win)
+    np.testing.assert_allclose(loss, rollout_loss(model, win, horizon=h), rtol=1e-12)
+    assert float(frac) == 0.0
+    tight = (jnp.full(2, -1e-9), jnp.full(2, 1e-9))  # every rollout leaves it
+    assert float(rollout_loss_and_range(model, win, tight, horizon=h)[1]) == 1.0
+    params, static = eqx.partition(model, eqx.is_array)
+    g = jax.grad(lambda p: rollout_loss_and_range(eqx.combine(p, static), win, wide,
+                                                  horizon=h)[0])(params)
+    assert all(np.all(np.isfinite(x)) for x in jax.tree.leaves(g))
+    assert rollout_predictions(model, win, horizon=2).shape == (B, 3, 4)
+
+
+def test_outside_range_counts_leaving_and_non_finite_windows():
+    n, low, high = 1, jnp.array([-1.0]), jnp.array([1.0])
+    inside = jnp.zeros((3, 2))
+    xhat = jnp.stack([inside, inside.at[1, 0].set(1.5), inside.at[2, 1].set(jnp.nan),
+                      inside.at[0, 1].set(50.0)])  # v may be anything: q alone is boxed
+    np.testing.assert_array_equal(outside_range(xhat, n, low, high), [False, True, True, False])
 
 
 def test_shape_mistakes_are_user_errors(getkey):

@@ -120,8 +120,40 @@ def check_quick_pipeline(task, quick_runs):
         assert (out / link).is_file(), link
     saved = json.loads((out / "results.json").read_text())
     assert saved["task"] == task and saved["quick"] is True
+    _baselines_beside_the_networks(result, text, saved)
     if task == "task3":
         _errors_are_reported_at_lambda_one(result, text)
+
+
+def _baselines_beside_the_networks(result, text, saved):
+    """Issue 43: every data set's networks beside no motion and the linear models, at the
+    predict stage's horizons, with one verdict line per network; results.json keeps them."""
+    for vname, vres in saved["results"]["variants"].items():
+        bl = vres["baselines"]
+        files = saved["results"]["data"]["variants"][vname]["physics"]
+        assert bl["train_trajectories"] == files["train"]
+        assert bl["test_trajectories"] == files["test"]
+        models = vres["models"]
+        pr = next(iter(models.values()))["predict"]
+        horizons = {pr["prediction_error"]["horizon_s"], pr["long_prediction_error"]["horizon_s"]}
+        assert sorted(horizons) == bl["horizons"]
+        assert {(s["kind"], s["horizon"]) for s in bl["scores"]} == {
+            (k, h) for k in ("no_motion", "arx", "linear2") for h in horizons}
+        for s in bl["scores"]:
+            assert s["mean"] is None or s["mean"] >= 0
+        assert (result.out_dir / "baselines" / vname / "done.json").is_file()
+        assert (result.out_dir / "tables" / f"baselines_{vname}.csv").is_file()
+    table = re.findall(r"\| model \| rollout error over .*?\n\n", text, re.S)
+    assert len(table) == len(saved["results"]["variants"])
+    for t in table:
+        assert "| no motion |" in t and "| ARX (order 2) |" in t and "| linear 2nd order |" in t
+    for vres in saved["results"]["variants"].values():
+        for kind in vres["models"]:
+            who = "black box" if kind == "blackbox" else f"{kind.capitalize()} network"
+            assert f"| {who} |" in text
+            assert re.search(rf"^- {who}: at [0-9.]+ s (beats|LOSES)", text, re.M), who
+    verdicts = re.findall(r"^- .*?: at [0-9.]+ s (?:beats|LOSES)", text, re.M)
+    assert len(verdicts) == sum(len(v["models"]) for v in saved["results"]["variants"].values())
 
 
 def _errors_are_reported_at_lambda_one(result, text):
@@ -154,6 +186,9 @@ def test_second_call_skips_finished_stages(quick_runs):
     again = reproduce(dataclasses.replace(first.config, jobs=1), first.out_dir, log=lines.append)
     assert [p.stat().st_mtime_ns for p in done] == stamps
     assert sum("skipped" in line for line in lines) == len(done)
+    assert "[baselines/main] done before, skipped" in lines  # issue 43's stage is reused
+    assert again.results["variants"]["main"]["baselines"] == (
+        first.results["variants"]["main"]["baselines"])
     for kind in ("lagrangian", "blackbox"):
         a, b = (r.results["variants"]["main"]["models"][kind] for r in (first, again))
         assert a == b, kind

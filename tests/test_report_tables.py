@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -334,3 +335,69 @@ def test_the_no_forces_baseline_is_explained_for_momenta():
                                   "blackbox": entry("velocity")}))
     assert "handed the recorded velocity q̇ = M⁻¹ p" in text
     assert "handed" not in " ".join(_floor_lines({"lagrangian": entry("velocity")}))
+
+
+def _comparison(linear: tuple[float, float], still: float, arx_out=()):
+    """No motion and the two linear models at 1 s and 5 s: ARX ``linear`` (1 s, 5 s), the
+    linear second-order model ten times worse, no motion ``still`` at both."""
+    from softpinn.bridge.analysis.baselines import BaselineComparison, BaselineScore
+
+    scores = []
+    for name, kind, factor in (("no motion", "no_motion", None), ("ARX (order 2)", "arx", 1.0),
+                               ("linear 2nd order", "linear2", 10.0)):
+        for h, lin in zip((1.0, 5.0), linear, strict=True):
+            mean = still if factor is None else factor * lin
+            out = tuple(arx_out) if kind == "arx" else ()
+            scores.append(BaselineScore(name, kind, h, mean, 0.1 * mean, out))
+    return BaselineComparison((0, 1, 2), (4, 5), tuple(scores))
+
+
+def test_the_verdict_names_the_winner_at_each_horizon():
+    """Issue 43: one line says whether a network beats the best linear model and no motion at
+    each horizon, and names whom it loses to."""
+    from softpinn.bridge.analysis.baselines import verdict
+
+    c = _comparison(linear=(1e-4, 1e-2), still=1e-3)
+    assert c.best_linear(5.0).name == "ARX (order 2)"
+    line = verdict("Lagrangian network", {1.0: 1e-5, 5.0: 2e-2}, c)
+    first, second = line.split("; ")
+    assert first == ("Lagrangian network: at 1 s beats the best linear model (ARX (order 2)) "
+                     "by 10x and no motion by 100x")
+    # at 5 s no motion (1e-3) is better than ARX (1e-2): the network loses to no motion
+    assert second == "at 5 s LOSES to no motion (its error is 20x no motion's)"
+    # beating the linear model but not no motion is a loss, to no motion
+    line = verdict("black box", {5.0: 5e-3}, c)
+    assert "LOSES to no motion" in line and "beats" not in line
+    # a diverged rollout loses
+    assert "LOSES" in verdict("black box", {1.0: math.inf}, c)
+
+
+def test_baseline_rows_and_verdict_lines_read_from_the_stage_json(tmp_path):
+    """The report rebuilds the comparison from results.json (inf stored as null) and shows the
+    networks first, then the baselines, with rollouts that left the training range said."""
+    from softpinn.bridge.report.baselines import (
+        baseline_table,
+        comparison_from_json,
+        verdict_lines,
+    )
+
+    c = _comparison(linear=(1e-4, 1e-2), still=1e-3, arx_out=(5,))
+    stored = json.loads(json.dumps(c.to_json()))
+    stored["scores"][-1]["mean"] = None  # linear 2nd order diverged at 5 s
+    back = comparison_from_json(stored)
+    assert back.scores[:-1] == c.scores[:-1] and back.scores[-1].mean == math.inf
+    networks = {"Lagrangian network": {1.0: (1e-5, 1e-6), 5.0: (2e-2, 1e-3)},
+                "black box": {1.0: (None, None), 5.0: (math.inf, math.inf)}}
+    table = baseline_table(networks, back, caption="x")
+    md = to_markdown(table)
+    assert "| model | rollout error over 1 s | rollout error over 5 s |" in md
+    names = [row[0] for row in table.rows]
+    assert names == ["Lagrangian network", "black box", "no motion", "ARX (order 2)",
+                     "linear 2nd order"]
+    assert table.rows[1][1:] == ("diverged", "diverged")
+    assert table.rows[3][1].endswith("(1 of 2 left the training range)")
+    assert table.rows[4][2] == "diverged"
+    lines = verdict_lines(networks, back)
+    assert len(lines) == 2 and lines[0].startswith("- Lagrangian network: at 1 s beats")
+    assert "at 5 s LOSES to no motion" in lines[0]
+    assert lines[1].startswith("- black box: at 1 s LOSES")

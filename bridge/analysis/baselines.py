@@ -107,6 +107,9 @@ def verdict(model: str, errors: Mapping[float, float], comparison: BaselineCompa
         if math.isfinite(err) and err < lin.mean and err < still.mean:
             parts.append(f"at {h:g} s beats the best linear model ({lin.name}) by "
                          f"{_ratio(lin.mean, err)} and no motion by {_ratio(still.mean, err)}")
+        elif not math.isfinite(err):
+            parts.append(f"at {h:g} s LOSES: its rollout diverged ({best.name}: "
+                         f"{best.mean:.3g})")
         else:
             parts.append(f"at {h:g} s LOSES to {best.name} (its error is "
                          f"{_ratio(err, best.mean)} {best.name}'s)")

@@ -1,7 +1,8 @@
 """The studies ``softpinn reproduce TASK`` runs (:class:`.study.Study`), and the registry that
 picks one by TASK: a paper task (or a spec file of the user's) runs
 :mod:`bridge.tasks.pipeline`, ``experiment`` :mod:`bridge.tasks.experiment`, ``challenges``
-:mod:`bridge.challenges.pipeline`; each writes its report with :mod:`bridge.report`."""
+:mod:`bridge.challenges.pipeline`, ``cosserat`` :mod:`bridge.cosserat`; each writes its report
+with :mod:`bridge.report`."""
 
 from __future__ import annotations
 
@@ -16,12 +17,14 @@ from softpinn.bridge.challenges.pipeline import (
     run_challenges,
     write_strict_json,
 )
+from softpinn.bridge.cosserat import CosseratRun, run_cosserat
 from softpinn.bridge.report.challenges import write_challenges_report
+from softpinn.bridge.report.cosserat import write_cosserat_report
 from softpinn.bridge.report.experiment import write_experiment_report
 from softpinn.bridge.report.task import write_task_report
 from softpinn.bridge.tasks.experiment import ExperimentRun, run_experiment
 from softpinn.bridge.tasks.pipeline import TaskRun, draw_figures, run_task
-from softpinn.bridge.tasks.plan import CHALLENGES, EXPERIMENTS, TASKS
+from softpinn.bridge.tasks.plan import CHALLENGES, COSSERAT, EXPERIMENTS, TASKS
 from softpinn.bridge.tasks.stages import write_json
 
 
@@ -86,12 +89,31 @@ class ChallengesStudy:
         return results
 
 
+class CosseratStudy:
+    """Networks against linear models on a Cosserat-rod stand-in arm (:mod:`bridge.cosserat`)."""
+
+    def run(self, config, out_dir, *, log, progress, force) -> CosseratRun:
+        return run_cosserat(config, out_dir, log=log, progress=progress, force=force)
+
+    def write_report(self, run: CosseratRun, *, machine: str) -> Written:
+        return Written(write_cosserat_report(run, seconds=run.seconds, machine=machine),
+                       run.seconds)
+
+    def write_results(self, run: CosseratRun, *, seconds: float, machine: str) -> dict:
+        results = {"task": "cosserat", "quick": run.plan.quick, "seconds": seconds,
+                   "machine": machine, "stage_seconds": run.stage_seconds,
+                   "plan": run.plan.to_dict(), "results": run.results}
+        write_strict_json(run.out / "results.json", results)
+        return results
+
+
 #: TASK -> the study that runs it; a TASK not here (a spec file) is a task's (:data:`TASK`)
 TASK: Study = TaskStudy()
 REGISTRY: Mapping[str, Study] = MappingProxyType({
     **{task: TASK for task in TASKS},
     **{task: ExperimentStudy() for task in EXPERIMENTS},
     **{task: ChallengesStudy() for task in CHALLENGES},
+    **{task: CosseratStudy() for task in COSSERAT},
 })
 
 

@@ -20,10 +20,16 @@ def run(args) -> int:
     if out.exists() and not args.force:
         raise UserError(f"--out {out}: file exists (use --force to overwrite)")
     text, spec = write_template(args.name, args.segments, planar=args.planar,
-                                hanging=args.hanging, actuation=args.actuation, file=str(out))
+                                hanging=args.hanging, actuation=args.actuation, file=str(out),
+                                inputs=getattr(args, "inputs", None),
+                                angles=getattr(args, "angles", None))
     _write_text(out, text)
+    actuation = spec.actuation
+    if not isinstance(actuation, str):
+        kind = {"tendons": "tendon"}.get(args.actuation, args.actuation)
+        actuation = f"{kind} (a constant {spec.n} x {spec.m} matrix)"
     print(f"{spec.name}: wrote {out} ({len(spec.segments)}-segment {spec.kind}, n = {spec.n}, "
-          f"m = {spec.m}, actuation {spec.actuation}); edit it, then:")
+          f"m = {spec.m}, actuation {actuation}); edit it, then:")
     print(f"  softpinn simulate {out} --out {spec.name}.npz")
     return 0
 

@@ -1,6 +1,7 @@
 """``softpinn train``: flags mapped onto :func:`softpinn.learn.train`; the progress bar is drawn
 from the training events (:class:`bridge.cli.bars.TrainBar`); its parser:
-:mod:`bridge.cli.train`."""
+:mod:`bridge.cli.train`. ``--model linear`` fits the least-squares baselines instead
+(:func:`train_linear`, ``docs/rundir.md``)."""
 
 from __future__ import annotations
 
@@ -8,19 +9,25 @@ import dataclasses
 import json
 import math
 import sys
+import time
 from pathlib import Path
+from types import SimpleNamespace
 
 from tqdm.auto import tqdm
 
+from softpinn.bridge.analysis.baselines import BASELINES
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.cli.bars import TrainBar
 from softpinn.bridge.cli.runnotes import held_out_text
-from softpinn.bridge.cli.trainflags import CUSTOM, NETS, model_config
+from softpinn.bridge.cli.trainflags import CUSTOM, LINEAR, NETS, check_linear_flags, model_config
 from softpinn.errors import UserError
+from softpinn.files import write_json
 from softpinn.learn import (
     TrainConfig,
     check_run_dir,
     data_force_weights,
+    dataset_info,
+    fit_baseline,
     load_dataset,
     load_run,
     read_json,
@@ -32,6 +39,8 @@ from softpinn.learn.distributed import initialize, is_writer
 
 
 def run(args) -> int:
+    if args.model == LINEAR:
+        return train_linear(args)
     enable_x64()
 
     initialize(args.coordinator, args.num_processes, args.process_id, cluster=args.cluster)
@@ -100,7 +109,79 @@ def run(args) -> int:
         spread = f" ± {bt['std']:.3e}" if len(m["seeds"]) > 1 else ""
         print(f"best test loss: {bt['mean']:.4e}{spread}   (best seed {m['best_member']})")
         print(held_out_text(result.run_dir, config, data))
+        print(_validation_text(read_json(Path(result.run_dir) / "config.json")))
         print(f"run directory: {result.run_dir}")
+    return 0
+
+
+def _validation_text(info: dict) -> str:
+    """Which trajectories picked the model (--validation), or the note that the test ones did."""
+    ids = info["split"].get("validation") or []
+    if ids:
+        return (f"validation: trajector{'y' if len(ids) == 1 else 'ies'} "
+                f"{', '.join(map(str, ids))} (they pick the best epoch; the test loss is only "
+                "recorded)")
+    notes = info.get("notes") or ["the test loss picks the best epoch"]
+    return f"validation: none; {'; '.join(notes)}"
+
+
+#: the files of a linear baseline run, in the order written (config.json, the run's mark, last)
+LINEAR_FILES = ("no_motion.json", "arx.json", "linear2.json", "metrics.json", "config.json")
+#: format of a linear baseline run's config.json
+LINEAR_FORMAT = "softpinn-linear-run"
+
+
+def train_linear(args) -> int:
+    """``train --model linear``: no motion, ARX (order 2) and the linear second-order model
+    fitted by least squares on the training trajectories (closed form, seconds), each written
+    as its ``to_dict`` JSON, with config.json (the split) and metrics.json (the fit
+    residuals): every file whole (:func:`softpinn.files.write_json`)."""
+    check_linear_flags(args)
+    check_run_dir(args.out, force=args.force)
+    if args.test_trajectories is not None and args.test_count is not None:
+        raise UserError("give --test-trajectories or --test-count, not both")
+    data = load_dataset(args.data)
+    test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
+    train_ids, test_ids = (a.tolist() for a in split_trajectories(data, test=test,
+                                                                   seed=args.split_seed))
+    start = time.perf_counter()
+    models = {kind: fit_baseline(kind, data, train_ids, **options)
+              for _, kind, options in BASELINES}
+    seconds = time.perf_counter() - start
+    split = {"train": train_ids, "test": test_ids}
+    fits = {kind: {k: v for k, v in model.info.items() if k != "trajectories"}
+            for kind, model in models.items() if kind != "no_motion"}
+    metrics = {"model": LINEAR, "seconds": seconds, "split": split, **fits}
+    config = {"format": LINEAR_FORMAT, "version": 1,
+              "model": {"kind": LINEAR, "n": data.n, "m": data.m,
+                        "files": {kind: f"{kind}.json" for kind in models},
+                        "names": {kind: name for name, kind, _ in BASELINES}},
+              "dataset": dataset_info(data), "split": split,
+              "test_trajectories": list(test) if isinstance(test, tuple) else test,
+              "split_seed": args.split_seed}
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        for name in LINEAR_FILES:  # --force: the files of a linear run, nothing else
+            (out / name).unlink(missing_ok=True)
+        for kind, model in models.items():
+            write_json(out / f"{kind}.json", model.to_dict())
+        write_json(out / "metrics.json", metrics)
+        write_json(out / "config.json", config)
+    except OSError as exc:
+        raise UserError(f"--out {out}: cannot write ({exc.strerror or exc})") from None
+    if args.json:
+        print(json.dumps({"run": str(out), **nulls(metrics)}, allow_nan=False))
+        return 0
+    arx, lin = fits["arx"], fits["linear2"]
+    print(f"fitted ARX (order 2) and a linear second-order model on {len(train_ids)} "
+          f"trajector{'y' if len(train_ids) == 1 else 'ies'} in {seconds:.2g} s: ARX one-step "
+          f"rms {arx['one_step_rms']:.4e} (spectral radius {arx['spectral_radius']:.4g}), "
+          f"linear2 q̈ rms {lin['accel_rms']:.4e} (largest real eigenvalue "
+          f"{lin['max_real_eigenvalue']:.3g})")
+    print(held_out_text(out, SimpleNamespace(test_trajectories=test,
+                                             split_seed=args.split_seed), data))
+    print(f"run directory: {out}")
     return 0
 
 

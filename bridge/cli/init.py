@@ -28,9 +28,19 @@ def add_arguments(p) -> None:
     p.set_defaults(planar=False)
     p.add_argument("--hanging", action="store_true",
                    help="the arm hangs down (default: it stands up)")
-    p.add_argument("--actuation", choices=("tendon", "generalized", "tip-wrench", "none"),
+    p.add_argument("--actuation", choices=("tendon", "tendons", "chambers", "torques",
+                                           "generalized", "tip-wrench", "none"),
                    help="the inputs (default: tendon for a spatial arm, generalized for a planar "
-                   "one)")
+                   "one): tendon(s) = tensions [N]; chambers = pneumatic chamber pressures [kPa] "
+                   "at --angles; torques = bending torques [N m] per segment; the others as "
+                   "docs/spec.md")
+    p.add_argument("--inputs", type=int, metavar="N",
+                   help="tendons or chambers per segment (default: 4 tendons, 3 chambers, "
+                   "evenly spaced)")
+    p.add_argument("--angles", type=float, nargs="+", metavar="DEG",
+                   help="the tendons' or chambers' angles [deg] around the backbone in each "
+                   "segment's frame, from +x toward +y (e.g. 0 120 240); written as a constant "
+                   "actuation matrix")
     p.add_argument("--out", metavar="FILE.toml", help="file to write (default: NAME.toml)")
     p.add_argument("--force", action="store_true", help="overwrite an existing file")
 

@@ -1,5 +1,6 @@
-"""``softpinn predict RUN DATA.npz``: one-step and rollout errors of a trained model; run in
-:mod:`bridge.cli._predict_run`."""
+"""``softpinn predict RUN DATA.npz``: one-step and rollout errors of a trained model at one or
+more horizons, beside the baselines (no motion, the least-squares linear models) and the one
+verdict line; run in :mod:`bridge.cli._predict_run`."""
 
 from __future__ import annotations
 
@@ -11,7 +12,12 @@ def add_parser(subparsers):
         description=(
             "One-step test error (eq. 8/9 per pair, mean ± std) and rollouts from the true "
             "initial state with the true inputs over --horizon seconds (mean squared error of q "
-            "per trajectory, mean ± std over trajectories)."
+            "per trajectory, mean ± std over trajectories), at each --horizon given (one load, "
+            "one rollout: the shorter horizons are the longest rollout's first seconds). "
+            "Beside them: no motion and the least-squares linear models (ARX of order 2, "
+            "linear second order) fitted on the run's training trajectories and scored on the "
+            "same trajectories, and one verdict line. A run of 'train --model linear' is "
+            "scored the same way, and the best of its models named."
         ),
     )
     p.set_defaults(func=run)
@@ -21,8 +27,9 @@ def add_parser(subparsers):
 def add_arguments(p) -> None:
     p.add_argument("run", metavar="RUN", help="run directory written by 'softpinn train'")
     p.add_argument("data", metavar="DATA.npz", help="dataset file")
-    p.add_argument("--horizon", type=float, required=True, metavar="S",
-                   help="rollout length [s] from each test trajectory's start")
+    p.add_argument("--horizon", type=float, nargs="+", required=True, metavar="S",
+                   help="rollout length(s) [s] from each test trajectory's start; several "
+                   "give one line each (--plot draws the longest)")
     p.add_argument(
         "--reset-every",
         type=float,
@@ -46,7 +53,11 @@ def add_arguments(p) -> None:
         "DATA is the training file, else all)",
     )
     p.add_argument("--member", type=int, default=None, help="ensemble member (seed)")
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--no-baselines", action="store_true",
+                   help="leave out the baselines and the verdict line")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (with several horizons: one per horizon, under "
+                   "'results')")
     p.add_argument("--plot", default=None, metavar="FILE",
                    help="PNG of predicted vs true q (an existing file is replaced only if "
                    "softpinn wrote it, or with --force)")

@@ -16,7 +16,10 @@ def add_parser(subparsers):
             "IMU records a tendon-driven arm, the recordings are imported with each "
             "preprocessing and at each sensor rate (docs/experiment.md); or the paper's open "
             "challenges (Section VI-B: fast Lagrangian training, a known actuator model and "
-            "additional labels, Hamiltonian networks from velocity data; docs/challenges.md). "
+            "additional labels, Hamiltonian networks from velocity data; docs/challenges.md); "
+            "or a Cosserat-rod arm that is not PCC (PyElastica, the optional extra "
+            "'cosserat'): its recordings imported as a real arm's, networks against no motion "
+            "and least-squares linear models (docs/cosserat.md). "
             "Finished stages are skipped when run again with the same settings."
         ),
     )
@@ -26,8 +29,9 @@ def add_parser(subparsers):
 
 def add_arguments(p) -> None:
     p.add_argument("task", metavar="TASK",
-                   help="task1 ... task5, experiment, challenges, or a spec file of your own "
-                        "arm (ARM.toml: its [data] and [training] recipe, or defaults)")
+                   help="task1 ... task5, experiment, challenges, cosserat, or a spec file of "
+                        "your own arm (ARM.toml: its [data] and [training] recipe, or "
+                        "defaults)")
     p.add_argument("--quick", action="store_true", help="small settings (a minute or two)")
     p.add_argument("--out", required=True,
                    help="output directory (new, empty, or an earlier reproduce's: finished "

@@ -13,7 +13,9 @@ def add_parser(subparsers):
             "Train Lagrangian (eq. 6), Hamiltonian (eq. 7) or black-box networks with the "
             "one-step Runge-Kutta loss (eqs. 8/9) or the acceleration loss (eq. 10), AdamW. "
             "Writes RUN/config.json, model.eqx, checkpoint.eqx, history.csv, metrics.json, "
-            "loss.png (one seed-<s>/ folder per member of an ensemble)."
+            "loss.png (one seed-<s>/ folder per member of an ensemble). --model linear fits "
+            "the linear baselines instead (RUN/config.json, arx.json, linear2.json, "
+            "no_motion.json, metrics.json)."
         ),
     )
     p.set_defaults(func=run, given=frozenset())
@@ -23,6 +25,7 @@ def add_parser(subparsers):
 def add_arguments(p) -> None:
     # deferred: jax at start-up (the flags' defaults are TrainConfig's and ModelConfig's)
     from softpinn.bridge.cli.trainflags import (
+        LINEAR,
         MODEL_KINDS,
         RESUMABLE,
         add_network_flags,
@@ -31,7 +34,10 @@ def add_arguments(p) -> None:
     )
 
     p.add_argument("data", metavar="DATA.npz", help="dataset file")
-    p.add_argument("--model", choices=MODEL_KINDS, default=None, help="network kind (required)")
+    p.add_argument("--model", choices=(*MODEL_KINDS, LINEAR), default=None,
+                   help="network kind (required); 'linear': the least-squares baselines (ARX "
+                   "of order 2 and a linear second-order model, closed form, seconds) that "
+                   "'softpinn predict' scores beside no motion")
     p.add_argument("--out", required=True, metavar="RUN", help="run directory to write")
     add_setting_flags(p)
     p.add_argument("--accel-weights-from", default=None, metavar="RUN",

@@ -14,11 +14,17 @@ import typing
 from softpinn.errors import UserError
 from softpinn.learn import GROUPS, RESUMABLE, ModelConfig, TrainConfig, mass_scale
 
-__all__ = ["CUSTOM", "MODEL_KINDS", "NETS", "RESUMABLE", "SWEEP_OWN", "add_network_flags",
-           "add_setting_flags", "model_config", "track_given"]
+__all__ = ["CUSTOM", "LINEAR", "LINEAR_FLAGS", "MODEL_KINDS", "NETS", "RESUMABLE", "SWEEP_OWN",
+           "add_network_flags", "add_setting_flags", "check_linear_flags", "model_config",
+           "track_given"]
 
 MODEL_KINDS = ("lagrangian", "hamiltonian", "blackbox", "lagrangian-hessian")
 NETS = ("mass", "potential", "damping", "input", "hidden")
+#: ``train --model linear``: the least-squares baselines (issue 43), fitted in closed form
+LINEAR = "linear"
+#: the flags ``--model linear`` takes (their destinations); every other one is a network's
+LINEAR_FLAGS = frozenset({"model", "out", "force", "quiet", "json", "test_trajectories",
+                          "test_count", "split_seed"})
 #: Train settings whose flags are not generated one to one from their field.
 CUSTOM = ("test_trajectories",)
 #: train flags the sweep spells otherwise or leaves out: its --seeds and --samples are its own,
@@ -41,6 +47,38 @@ def _devices(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a count >= 1, or 'all' (or 0), got {value}")
     return value
+
+
+def _validation(text: str):
+    """--validation auto | K (a count; 0: none) | X (a fraction in (0, 1)) | ID,ID,... (ids)."""
+    text = text.strip()
+    try:
+        if text == "auto":
+            return text
+        if "," in text:
+            return tuple(int(i) for i in text.split(",") if i.strip())
+        if any(c in text for c in ".eE"):
+            value = float(text)
+            if not 0.0 < value < 1.0:
+                raise argparse.ArgumentTypeError(f"a fraction must be in (0, 1), got {text!r}")
+            return value
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected auto, a count, a fraction in (0, 1) or ids ID,ID,..., got {text!r}"
+        ) from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a count >= 0, got {value}")
+    return value
+
+
+def _horizons(text: str) -> tuple[int, ...]:
+    """--rollout-schedule 1,4,16,64: horizons in steps (checked further by TrainConfig)."""
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected horizons in steps separated by commas, "
+                                         f"such as 1,4,16,64, got {text!r}") from None
 
 
 def _split_flags(group) -> None:
@@ -70,6 +108,10 @@ def add_setting_flags(parser, *, skip=CUSTOM, title=str, split_flags=_split_flag
             kw = {"default": f.default, "help": f.metadata["help"].replace("%", "%%")}
             if f.name == "devices":
                 kw.update(type=_devices, metavar="N|all")
+            elif f.name == "rollout_schedule":
+                kw.update(type=_horizons, metavar="H,H,...")
+            elif f.name == "validation":  # softpinn train applies auto where it is not given
+                kw.update(type=_validation, metavar="auto|K|X|ID,ID")
             elif typing.get_origin(hint) is tuple:  # accel_weights: n numbers
                 kw.update(type=float, nargs="+", metavar="W")
             elif f.metadata.get("choices"):
@@ -135,6 +177,16 @@ def track_given(parser) -> None:
             _cls.__call__(self, parser, namespace, values, option_string)
 
         action.__class__ = type(f"Tracked{cls.__name__}", (cls,), {"__call__": __call__})
+
+
+def check_linear_flags(args) -> None:
+    """Refuse, in one line naming the flag, a network's flag given with ``--model linear``
+    (its models are fitted in closed form: no epochs, optimizer, network or devices)."""
+    extra = sorted(set(getattr(args, "given", ())) - LINEAR_FLAGS)
+    if extra:
+        flag = f"--{extra[0].replace('_', '-')}"
+        raise UserError(f"{flag} applies to network models, not --model linear (its ARX and "
+                        "linear second-order models are fitted in closed form)")
 
 
 def model_config(args, n: int, m: int, data=None, train_ids=None):

@@ -30,6 +30,7 @@ from softpinn.bridge.figures.tables import (
     to_markdown,
     write_table,
 )
+from softpinn.bridge.report.experiment_baselines import baselines_section, baselines_summary
 from softpinn.bridge.report.walltime import WallTime
 from softpinn.files import atomic_write
 from softpinn.learn import load_dataset
@@ -207,6 +208,8 @@ def verdict(plan, results: Mapping[str, Any]) -> list[str]:
                f"{plan.reset_every:g} s, the predictions at {plan.main_rate:g} Hz stay, at best "
                f"over the preprocessings, " + " and ".join(parts) + " of the true arm (the "
                f"sensor's white noise: {noise:g} {UNIT}).")
+    if baselines_summary(results):
+        out.append(baselines_summary(results))
     res = []
     for p, e in main["preprocessing"].items():
         bend = e["models"]["lagrangian"].get("bending", {})
@@ -294,6 +297,7 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
               + "; ".join(f"{rn}: " + ", ".join(f"`{s}`" + _differences(plan, p)
                                                 for p, s in per.items())
                           for rn, per in plan.preprocessing.items()) + ".", ""]
+    lines += baselines_section(plan, results, out)
     # sensor and raw against processed (Fig. 52)
     rec = main["record"]
     truth = np.load(rec["truth"])

@@ -21,6 +21,13 @@ from softpinn.bridge.figures.paper import paper_task, results_table, table_iii_c
 from softpinn.bridge.figures.rollouts import NETWORK
 from softpinn.bridge.figures.tables import to_markdown, write_table
 from softpinn.bridge.figures.task import _rate_figure, _variant_figures
+from softpinn.bridge.report.baselines import (
+    WHAT,
+    baseline_table,
+    comparison_from_json,
+    predict_errors,
+    verdict_lines,
+)
 from softpinn.bridge.report.task_analysis import analysis_section, fmt
 from softpinn.bridge.report.verdict import verdict
 from softpinn.bridge.report.walltime import WallTime
@@ -140,6 +147,7 @@ def write_task_report(spec, plan, results: dict, out: Path, *, seconds: float,
                 lines += ["`± inf`: the paper prints an infinite spread where at least one of "
                           "its test rollouts diverged; ours reads the same way (a mean of inf "
                           "is a diverged rollout of ours).", ""]
+        lines += _baseline_lines(plan, vname, title, models, vres.get("baselines"), out)
         lines += _floor_lines(models)
         lines += _modes_lines(models)
         lines += figures[vname]
@@ -186,6 +194,34 @@ def _variant_figures_drafted(draft: bool, *args) -> list[str]:
     """:func:`_variant_figures` in a worker process, drafts as in the caller's."""
     with draft_figures(draft):
         return _variant_figures(*args)
+
+
+def _baseline_lines(plan, vname: str, title: str, models: dict, baselines: dict | None,
+                    out: Path) -> list[str]:
+    """The variant's networks beside no motion and the linear models (the ``baselines``
+    stage), at the prediction's horizon and the long one, and a verdict line per network."""
+    if not baselines:
+        return []
+    comparison = comparison_from_json(baselines)
+    networks = {_who(kind): predict_errors(entry["predict"]) for kind, entry in models.items()}
+    table = baseline_table(networks, comparison, caption=(
+        f"{plan.task}{title}: the networks beside the baselines, rollout error of q (mean ± std "
+        "over the test trajectories)"))
+    write_table(table, out / "tables", f"baselines_{vname}")
+    train = ", ".join(str(i) for i in comparison.train)
+    return [
+        "Baselines every network must beat: " + WHAT + f", on the physics models' training "
+        f"trajectories ({train}), scored on the same test trajectories with the same rollout "
+        "error, over the prediction's horizon and the long one.",
+        "",
+        to_markdown(table),
+        *verdict_lines(networks, comparison),
+        "",
+    ]
+
+
+def _who(kind: str) -> str:
+    return "black box" if kind == "blackbox" else f"{NETWORK[kind]} network"
 
 
 def _modes_lines(models: dict) -> list[str]:

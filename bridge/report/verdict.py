@@ -1,6 +1,7 @@
 """The few sentences a task report opens with, generated from its numbers: which model predicts
-best and by how much against the black box and the paper, how well the learned matrices match
-the true ones, what diverged, and whether this is a quick run."""
+best and by how much against the black box and the paper, whether each network beats no motion
+and the least-squares linear models, how well the learned matrices match the true ones, what
+diverged, and whether this is a quick run."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import Any
 
 from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.figures.paper import load_paper_tables, paper_task
+from softpinn.bridge.report.baselines import comparison_from_json, losses, predict_errors
 from softpinn.errors import UserError
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
@@ -36,6 +38,20 @@ def _paper_prediction(task: str, group: str, variant: str | None) -> float | Non
 def _times(a: float, b: float) -> str:
     r = b / a
     return f"{r:.3g}×" if r < 100 else f"{r:.2g}×"
+
+
+def _against_baselines(models: dict, baselines: dict, on: str) -> str:
+    """Whether each network beats no motion and the best linear model at every horizon (the
+    report's baselines rows), or whom it loses to where."""
+    comparison = comparison_from_json(baselines)
+    parts = []
+    for k, e in models.items():
+        lost = losses(predict_errors(e["predict"]), comparison)
+        parts.append(f"the {_who(k)} beats both at every horizon" if not lost else
+                     f"the {_who(k)} loses to " + ", ".join(f"{name} at {h:.3g} s"
+                                                           for h, name in lost))
+    return (f"Against no motion and the least-squares linear models{on}: "
+            + "; ".join(parts) + ".")
 
 
 def verdict(plan, results: dict[str, Any]) -> list[str]:
@@ -73,6 +89,8 @@ def verdict(plan, results: dict[str, Any]) -> list[str]:
             says.append("The " + text + ".")
         for k in gone:
             says.append(f"The {_who(k)}'s rollout diverged{on} (error inf).")
+        if vres.get("baselines"):
+            says.append(_against_baselines(models, vres["baselines"], on))
         for k, e in models.items():
             summary = (e.get("analyze") or {}).get("summary")
             if not summary:

@@ -19,7 +19,9 @@ stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the pa
    without reset (Figs. 14, 16) and over the whole test trajectory with the state reset from the
    processed measurement every :data:`RESET_EVERY` seconds (Figs. 15, 17), each against the
    processed measurement (what the paper could score) and against the true arm (what only a
-   simulation knows);
+   simulation knows); beside them, on each data set, the **baselines** every network must beat
+   (no motion and least-squares linear models on the same bending coordinates,
+   :mod:`bridge.analysis.baselines`), scored against the processed measurement the same ways;
 6. **bending**: the Lagrangian network's M, D, G, A in the observable bending block (dx, dy at
    dL = 0) against the true ones, through the transforms of :mod:`bridge.analysis`;
 7. **report**: ``report.md`` with the Table IV analogue beside the paper's figures, the rate x
@@ -44,7 +46,9 @@ from typing import Any
 from softpinn.bridge.base import outputs
 from softpinn.bridge.tasks import parallel
 from softpinn.bridge.tasks.experiment_stages import (
+    baselines_settings,
     rate_name,
+    stage_baselines,
     stage_bending,
     stage_import,
     stage_predict,
@@ -260,6 +264,9 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
             e = model["predict"]["prediction_error_truth"]
             log(f"{rn}/{prep}/{kind}: prediction error against the true arm "
                 f"{_fmt(e['mean'])} over {model['predict']['prediction_error']['horizon_s']:g} s")
+        entry["baselines"] = stages.run(f"baselines/{rn}/{prep}",
+                                        baselines_settings(plan, made[2]),
+                                        lambda d, i=made[1]: stage_baselines(plan, i))
         results["rates"][rn]["preprocessing"][prep] = entry
     seconds = sum(stages.seconds.values()) + (
         time.perf_counter() - t_start - sum(v for k, v in stages.seconds.items()

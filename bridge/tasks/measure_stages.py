@@ -1,7 +1,7 @@
 """The measuring stages of a task run (:mod:`.stages` runs them): one-step errors and rollouts
-(predict), the one-step loss floor of the true model stepped as the networks are (floor), the
-time scales of the true and the learned dynamics (modes), and the learned matrices against the
-true ones (analyze)."""
+(predict), the baselines every network must beat at the same horizons (baselines), the one-step
+loss floor of the true model stepped as the networks are (floor), the time scales of the true
+and the learned dynamics (modes), and the learned matrices against the true ones (analyze)."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from softpinn.bridge.analysis import analysis_q, analyze
+from softpinn.bridge.analysis.baselines import BASELINES, compare_baselines
 from softpinn.bridge.analysis.floors import drift_baseline, integration_floor
 from softpinn.bridge.analysis.forces import data_samples
 from softpinn.bridge.analysis.modes import modes
@@ -42,8 +43,7 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     test = f["test"]
     # a variant's data may be shorter than the plan's horizons (task5's fixed-step data): predict
     # over what the data holds and report that horizon, never more
-    span = max(float(tr["t"][-1] - tr["t"][0]) for tr in trajectories(data, test))
-    horizon, long_horizon = min(plan.horizon, span), min(plan.long_horizon, span)
+    horizon, long_horizon = predict_horizons(plan, data, test)
     per_seed = []
     for run in load_ensemble(trained["run"]):
         tc, cfg = run.train_config, run.model_config
@@ -97,6 +97,40 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
         "trajectories": list(map(int, test)),
         "seeds": [p["seed"] for p in per_seed],
     }
+
+
+def predict_horizons(plan: Plan, data, test) -> tuple[float, float]:
+    """The horizon and the long horizon the predict stage scores on the ``test`` trajectories
+    of ``data``: the plan's, each at most as long as the longest test trajectory (task5's
+    fixed-step data are shorter than the plan's horizons)."""
+    span = max(float(tr["t"][-1] - tr["t"][0]) for tr in trajectories(data, test))
+    return min(plan.horizon, span), min(plan.long_horizon, span)
+
+
+def baselines_settings(plan: Plan, files: dict, data_settings: dict) -> dict:
+    """The baselines stage's settings: the variant's physics data (and the settings that made
+    them), the horizons, the input hold and the baselines fitted."""
+    return {"files": files["physics"], "data": data_settings, "horizon": plan.horizon,
+            "long": plan.long_horizon, "hold": _input_hold(plan),
+            "baselines": [list(b) for b in BASELINES]}
+
+
+def stage_baselines(plan: Plan, files: dict) -> dict:
+    """No motion and the least-squares linear models (:mod:`bridge.analysis.baselines`) fitted
+    on the variant's physics-training trajectories and scored with predict's rollout error on
+    its test trajectories at the predict stage's horizons (closed form: well under a second)."""
+    f = files["physics"]
+    data = load_dataset(f["path"])
+    horizons = sorted(set(predict_horizons(plan, data, f["test"])))
+    hold = _input_hold(plan)
+    comparison = compare_baselines(data, f["train"], f["test"], horizons, input_hold=hold)
+    return {**comparison.to_json(), "horizons": horizons, "input_hold": hold}
+
+
+def _input_hold(plan: Plan) -> str:
+    """How the inputs are held between samples (the report's integration sentence's: the
+    first model's)."""
+    return str(next(iter(plan.models.values())).input_hold)
 
 
 def error_stats(vals: list[np.ndarray]) -> dict[str, Any]:

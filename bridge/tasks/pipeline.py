@@ -8,7 +8,9 @@ One call runs the whole study of a task (Section III-B, Section IV, Appendix B):
    Task 4: Lagrangian and Hamiltonian; Task 5: Lagrangian on the fixed-step and on the 50, 100,
    1000 Hz data) and the black-box baseline, which gets more data as in the paper;
 3. **predict**: one-step test error and rollouts over the paper's horizon (2.7 s, 5 s, 10 s),
-   long rollouts (Fig. 9) and rollouts with another step size (Figs. 24-25);
+   long rollouts (Fig. 9) and rollouts with another step size (Figs. 24-25); beside them, once
+   per data set, the **baselines** every network must beat (no motion and least-squares linear
+   models, :mod:`bridge.analysis.baselines`) at the same horizons;
 4. **analyze**: learned against true M, M^-1, D, G, A at the paper's table q and at q sampled
    in the data's range, with the transforms of :mod:`bridge.transforms`;
 5. **report**: ``report.md`` with Table III's row for the task beside ours, the matrix
@@ -47,7 +49,9 @@ from softpinn.bridge.figures.figsave import is_draft
 from softpinn.bridge.figures.task import _variant_figures
 from softpinn.bridge.tasks import parallel
 from softpinn.bridge.tasks.measure_stages import (
+    baselines_settings,
     stage_analyze,
+    stage_baselines,
     stage_floor,
     stage_modes,
     stage_predict,
@@ -114,6 +118,15 @@ def run_task(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
             pr = entry["predict"]
             log(f"{variant.name}/{kind}: test {pr['test_error']['mean']:.3e}, rollout "
                 f"{pr['prediction_error']['mean']:.3e} over {plan.horizon:g} s")
+        files = data["variants"][variant.name]
+        vres["baselines"] = stages.run(f"baselines/{variant.name}",
+                                       baselines_settings(plan, files, data_settings),
+                                       lambda d, f=files: stage_baselines(plan, f))
+        first = vres["baselines"]["horizons"][0]
+        log(f"{variant.name}/baselines: " + ", ".join(
+            f"{s['name']} {'diverged' if s['mean'] is None else format(s['mean'], '.3e')}"
+            for s in vres["baselines"]["scores"] if s["horizon"] == first)
+            + f" over {first:g} s")
         results["variants"][variant.name] = vres
     # the run's time: this call's wall time, plus what the stages it reused from earlier calls
     # took when they ran (stages run here, by this process or its workers, are in the wall time)
