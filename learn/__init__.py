@@ -13,7 +13,7 @@ Core API::
 from __future__ import annotations
 
 from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
-from softpinn.learn._baseline_errors import BaselineErrors
+from softpinn.learn._baseline_errors import BaselineErrors, range_box
 from softpinn.learn._baseline_errors import rollout_errors as baseline_rollout_errors
 from softpinn.learn._baselines import (
     ARX,
@@ -117,6 +117,7 @@ __all__ = [
     "resolve_momenta",
     "RESUMABLE",
     "rk4_step",
+    "range_box",
     "rollout",
     "baseline_rollout_errors",
     "rollout_loss",

@@ -21,11 +21,22 @@ from softpinn.learn._baselines import trajectory_arrays
 from softpinn.learn._data import Dataset, trajectories
 from softpinn.learn._predict import _reset_mask, check_rollout_request
 
-__all__ = ["BaselineErrors", "RANGE_MARGIN", "rollout_errors"]
+__all__ = ["BaselineErrors", "RANGE_MARGIN", "range_box", "rollout_errors"]
 
 #: A rollout is out of range where q̂ leaves the training data's box widened on each side by
 #: this fraction of the box's width per coordinate.
 RANGE_MARGIN = 0.5
+
+
+def range_box(q_low, q_high, margin: float = RANGE_MARGIN, xp=np):
+    """(low, high): the box of the training data's q widened on each side by ``margin`` of its
+    width per coordinate (a coordinate that does not vary gets a sliver of the widest one). A
+    rollout outside it has left the data's range. ``xp``: ``numpy``, or ``jax.numpy`` where
+    the box is traced (the training programs)."""
+    q_low, q_high = xp.asarray(q_low), xp.asarray(q_high)
+    width = q_high - q_low
+    pad = margin * xp.maximum(width, xp.maximum(1e-6 * xp.max(width), 1e-12))
+    return q_low - pad, q_high + pad
 
 
 @dataclass
@@ -87,9 +98,7 @@ def rollout_errors(baseline, trajs, horizon_s: float, *, traj_ids=None,
         raise UserError(f"the {baseline.kind} baseline has n={baseline.n}, m={baseline.m}; "
                         f"the trajectories have n={n}, m={m}")
     check_rollout_request(segs, horizon=float(horizon_s), dt=None, n=n, m=m, itemsize=8)
-    width = baseline.q_high - baseline.q_low
-    pad = margin * np.maximum(width, max(1e-6 * float(width.max()), 1e-12))
-    lo, hi = baseline.q_low - pad, baseline.q_high + pad
+    lo, hi = range_box(baseline.q_low, baseline.q_high, margin)
     errors, outside, rolls = [], [], []
     for s in segs:
         t = s["t"]

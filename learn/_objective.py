@@ -16,7 +16,7 @@ import numpy as np
 import optax
 
 from softpinn.errors import UserError
-from softpinn.learn._baseline_errors import RANGE_MARGIN
+from softpinn.learn._baseline_errors import range_box
 from softpinn.learn._config import TrainConfig
 from softpinn.learn._data import PairData, WindowData
 from softpinn.learn._losses import (
@@ -120,14 +120,10 @@ def check_rollout_schedule(config: TrainConfig, data, train_ids) -> None:
 
 def training_box(windows_x, n: int):
     """(low, high) (n,) each: the range of q over the training windows (B, h + 1, 2n) widened
-    on each side by :data:`learn._baseline_errors.RANGE_MARGIN` of its width per coordinate,
-    as the baselines' rollouts are judged (:func:`learn._baseline_errors.rollout_errors`).
+    on each side as the baselines' rollouts are judged (:func:`learn._baseline_errors.range_box`).
     Traceable: the training programs compute it from the windows they are given."""
     q = jnp.reshape(jnp.asarray(windows_x)[..., :n], (-1, n))
-    q_low, q_high = jnp.min(q, axis=0), jnp.max(q, axis=0)
-    width = q_high - q_low
-    pad = RANGE_MARGIN * jnp.maximum(width, jnp.maximum(1e-6 * jnp.max(width), 1e-12))
-    return q_low - pad, q_high + pad
+    return range_box(jnp.min(q, axis=0), jnp.max(q, axis=0), xp=jnp)
 
 
 def labels_key(labels: Equilibria | None):

@@ -375,16 +375,13 @@ def test_the_verdict_names_the_winner_at_each_horizon():
 def test_baseline_rows_and_verdict_lines_read_from_the_stage_json(tmp_path):
     """The report rebuilds the comparison from results.json (inf stored as null) and shows the
     networks first, then the baselines, with rollouts that left the training range said."""
-    from softpinn.bridge.report.baselines import (
-        baseline_table,
-        comparison_from_json,
-        verdict_lines,
-    )
+    from softpinn.bridge.analysis.baselines import BaselineComparison
+    from softpinn.bridge.report.baselines import baseline_table, verdict_lines
 
     c = _comparison(linear=(1e-4, 1e-2), still=1e-3, arx_out=(5,))
     stored = json.loads(json.dumps(c.to_json()))
     stored["scores"][-1]["mean"] = None  # linear 2nd order diverged at 5 s
-    back = comparison_from_json(stored)
+    back = BaselineComparison.from_json(stored)
     assert back.scores[:-1] == c.scores[:-1] and back.scores[-1].mean == math.inf
     networks = {"Lagrangian network": {1.0: (1e-5, 1e-6), 5.0: (2e-2, 1e-3)},
                 "black box": {1.0: (None, None), 5.0: (math.inf, math.inf)}}

@@ -66,9 +66,30 @@ class BaselineComparison:
         count with their error, which is what a user of that model would get)."""
         return min((s for s in self.at(horizon) if s.name in LINEAR), key=lambda s: s.mean)
 
+    def beaten_by(self, horizon: float, error: float) -> BaselineScore | None:
+        """None where a model with rollout ``error`` at ``horizon`` beats both the best linear
+        model and no motion; else the better of those two, which it loses to (a rollout that
+        is not finite loses)."""
+        lin, still = self.best_linear(horizon), self.no_motion(horizon)
+        if math.isfinite(error) and error < lin.mean and error < still.mean:
+            return None
+        return min((lin, still), key=lambda s: s.mean)
+
     def to_json(self) -> dict:
         return {"train_trajectories": list(self.train), "test_trajectories": list(self.test),
                 "scores": [s.to_json() for s in self.scores]}
+
+    @classmethod
+    def from_json(cls, d: Mapping) -> BaselineComparison:
+        """What :meth:`to_json` wrote (a stage's result); a null error (a rollout that was not
+        finite) is inf again."""
+        number = lambda x: math.inf if x is None else float(x)
+        scores = tuple(BaselineScore(str(s["name"]), str(s["kind"]), float(s["horizon"]),
+                                     number(s["mean"]), number(s["std"]),
+                                     tuple(int(i) for i in s["out_of_range"]))
+                       for s in d["scores"])
+        return cls(tuple(int(i) for i in d["train_trajectories"]),
+                   tuple(int(i) for i in d["test_trajectories"]), scores)
 
 
 def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],
@@ -103,8 +124,8 @@ def verdict(model: str, errors: Mapping[float, float], comparison: BaselineCompa
     parts = []
     for h, err in sorted(errors.items()):
         lin, still = comparison.best_linear(h), comparison.no_motion(h)
-        best = min((lin, still), key=lambda s: s.mean)
-        if math.isfinite(err) and err < lin.mean and err < still.mean:
+        best = comparison.beaten_by(h, err)
+        if best is None:
             parts.append(f"at {h:g} s beats the best linear model ({lin.name}) by "
                          f"{_ratio(lin.mean, err)} and no motion by {_ratio(still.mean, err)}")
         elif not math.isfinite(err):

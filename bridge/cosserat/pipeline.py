@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from softpinn.bridge.analysis.baselines import BaselineComparison, BaselineScore, verdict
+from softpinn.bridge.analysis.baselines import BaselineComparison, verdict
 from softpinn.bridge.base import outputs
 from softpinn.bridge.cosserat.settings import NETWORKS, CosseratPlan, make_plan
 from softpinn.bridge.cosserat.stages import (
@@ -77,20 +77,10 @@ def has_pyelastica() -> bool:
     return importlib.util.find_spec("elastica") is not None
 
 
-def comparison_from_json(doc: dict) -> BaselineComparison:
-    """The :class:`BaselineComparison` a stage stored (null errors: inf)."""
-    inf = lambda x: math.inf if x is None else float(x)  # noqa: E731
-    scores = tuple(BaselineScore(s["name"], s["kind"], float(s["horizon"]), inf(s["mean"]),
-                                 inf(s["std"]), tuple(s["out_of_range"]))
-                   for s in doc["scores"])
-    return BaselineComparison(tuple(doc["train_trajectories"]), tuple(doc["test_trajectories"]),
-                              scores)
-
-
 def verdicts(networks: dict[str, dict], baselines: dict) -> dict[str, str]:
     """One line per network (:func:`bridge.analysis.baselines.verdict`): does it beat the best
     linear model and no motion at each horizon?"""
-    comparison = comparison_from_json(baselines)
+    comparison = BaselineComparison.from_json(baselines)
     out = {}
     for kind, label in NETWORKS:
         pred = networks.get(kind, {}).get("predict", {})

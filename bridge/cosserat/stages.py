@@ -26,6 +26,7 @@ from softpinn.learn import (
     TrainingDiverged,
     load_dataset,
     predict,
+    range_box,
     train,
 )
 from softpinn.symbolic import (
@@ -38,11 +39,6 @@ from softpinn.symbolic import (
     select_trajectories,
     write_dataset,
 )
-
-#: A network's rollout is out of range where q̂ leaves the box of the training data's q widened
-#: on each side by this fraction of its width: the criterion of the baselines' rollouts
-#: (``learn``'s ``baseline_rollout_errors``, RANGE_MARGIN), so the table marks both alike.
-RANGE_MARGIN = 0.5
 
 
 def _finite(x) -> float | None:
@@ -129,16 +125,15 @@ def stage_train(plan: CosseratPlan, network: Network, imported: dict, folder: Pa
 
 
 def _out_of_range(rollouts: list[dict], low, high) -> list[int]:
-    """Test trajectories whose rollout left the training box widened by :data:`RANGE_MARGIN`
-    (or the finite numbers)."""
-    low, high = np.asarray(low, float), np.asarray(high, float)
-    width = high - low
-    pad = RANGE_MARGIN * np.maximum(width, max(1e-6 * float(width.max()), 1e-12))
+    """Test trajectories whose rollout left the training data's range (``learn``'s
+    :func:`range_box`, the baselines' criterion, so the table marks both alike), or the finite
+    numbers."""
+    lo, hi = range_box(np.asarray(low, float), np.asarray(high, float))
     out = []
     for r in rollouts:
         q = np.asarray(r["q_pred"], float)
         with np.errstate(invalid="ignore"):
-            inside = np.all((q >= low - pad) & (q <= high + pad))
+            inside = np.all((q >= lo) & (q <= hi))
         if not inside:
             out.append(int(r["id"]))
     return out

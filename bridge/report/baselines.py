@@ -32,17 +32,6 @@ def _number(x) -> float:
     return math.inf if x is None else float(x)
 
 
-def comparison_from_json(d: Mapping[str, Any]) -> BaselineComparison:
-    """The :class:`BaselineComparison` that ``to_json`` wrote (a stage's result): None means,
-    a rollout that was not finite, are inf again."""
-    scores = tuple(BaselineScore(str(s["name"]), str(s["kind"]), float(s["horizon"]),
-                                 _number(s["mean"]), _number(s["std"]),
-                                 tuple(int(i) for i in s["out_of_range"]))
-                   for s in d["scores"])
-    return BaselineComparison(tuple(int(i) for i in d["train_trajectories"]),
-                              tuple(int(i) for i in d["test_trajectories"]), scores)
-
-
 def horizons(comparison: BaselineComparison) -> list[float]:
     """The horizons the baselines were scored at, shortest first."""
     out: list[float] = []
@@ -114,10 +103,9 @@ def losses(errors: Errors, comparison: BaselineComparison) -> list[tuple[float, 
         e = _at(errors, h)
         if e is None:
             continue
-        lin, still = comparison.best_linear(h), comparison.no_motion(h)
-        err = _number(e[0])
-        if not (math.isfinite(err) and err < lin.mean and err < still.mean):
-            out.append((h, min((lin, still), key=lambda s: s.mean).name))
+        best = comparison.beaten_by(h, _number(e[0]))
+        if best is not None:
+            out.append((h, best.name))
     return out
 
 

@@ -17,7 +17,6 @@ from softpinn.bridge.figures.tables import Span, Table, to_markdown, write_table
 from softpinn.bridge.report.baselines import (
     WHAT,
     baseline_rows,
-    comparison_from_json,
     network_verdict,
 )
 
@@ -39,9 +38,7 @@ def _beats(errors: Mapping[float, tuple], comparison: BaselineComparison) -> boo
     """Whether the network beats the best linear model and no motion at its horizon (as
     :func:`bridge.analysis.baselines.verdict` judges)."""
     (h, (mean, _)), = errors.items()
-    if mean is None or not math.isfinite(mean):
-        return False
-    return mean < comparison.best_linear(h).mean and mean < comparison.no_motion(h).mean
+    return comparison.beaten_by(h, math.inf if mean is None else float(mean)) is None
 
 
 def _cells(results: Mapping[str, Any]) -> list[tuple[str, str, Mapping[str, Any]]]:
@@ -59,7 +56,7 @@ def baselines_summary(results: Mapping[str, Any]) -> str:
     wins = {(k, way): 0 for k in KINDS for _, way in WAYS}
     for _, _, e in cells:
         for key, way in WAYS:
-            comparison = comparison_from_json(e["baselines"][way])
+            comparison = BaselineComparison.from_json(e["baselines"][way])
             networks = _errors(e, key)
             for k in KINDS:
                 wins[k, way] += _beats(networks[WHO[k]], comparison)
@@ -88,7 +85,7 @@ def baselines_section(plan, results: Mapping[str, Any], out: Path) -> list[str]:
     for key, way in WAYS:
         rows = []
         for rn, p, e in cells:
-            comparison = comparison_from_json(e["baselines"][way])
+            comparison = BaselineComparison.from_json(e["baselines"][way])
             networks = _errors(e, key)
             named = baseline_rows(networks, comparison)  # networks, then the baselines
             rows.append((rn[:-2], p, *(r[1] for r in named)))
@@ -111,7 +108,7 @@ def baselines_section(plan, results: Mapping[str, Any], out: Path) -> list[str]:
             label = f"{WHO[k]}, {p}"
             parts = []
             for key, way in WAYS:
-                comparison = comparison_from_json(e["baselines"][way])
+                comparison = BaselineComparison.from_json(e["baselines"][way])
                 text = network_verdict(label, _errors(e, key)[WHO[k]], comparison)
                 text = text[len(label) + 2:]
                 parts.append(text if way == "short" else

@@ -15,6 +15,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Any
 
+from softpinn.bridge.analysis.baselines import BaselineComparison
 from softpinn.bridge.analysis.modes import format_modes
 from softpinn.bridge.figures.figsave import draft_figures, is_draft
 from softpinn.bridge.figures.paper import paper_task, results_table, table_iii_comparison
@@ -24,7 +25,6 @@ from softpinn.bridge.figures.task import _rate_figure, _variant_figures
 from softpinn.bridge.report.baselines import (
     WHAT,
     baseline_table,
-    comparison_from_json,
     predict_errors,
     verdict_lines,
 )
@@ -202,7 +202,7 @@ def _baseline_lines(plan, vname: str, title: str, models: dict, baselines: dict 
     stage), at the prediction's horizon and the long one, and a verdict line per network."""
     if not baselines:
         return []
-    comparison = comparison_from_json(baselines)
+    comparison = BaselineComparison.from_json(baselines)
     networks = {_who(kind): predict_errors(entry["predict"]) for kind, entry in models.items()}
     table = baseline_table(networks, comparison, caption=(
         f"{plan.task}{title}: the networks beside the baselines, rollout error of q (mean ± std "

@@ -8,9 +8,10 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from softpinn.bridge.analysis.baselines import BaselineComparison
 from softpinn.bridge.analysis.transform_result import match_word
 from softpinn.bridge.figures.paper import load_paper_tables, paper_task
-from softpinn.bridge.report.baselines import comparison_from_json, losses, predict_errors
+from softpinn.bridge.report.baselines import losses, predict_errors
 from softpinn.errors import UserError
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
@@ -43,7 +44,7 @@ def _times(a: float, b: float) -> str:
 def _against_baselines(models: dict, baselines: dict, on: str) -> str:
     """Whether each network beats no motion and the best linear model at every horizon (the
     report's baselines rows), or whom it loses to where."""
-    comparison = comparison_from_json(baselines)
+    comparison = BaselineComparison.from_json(baselines)
     parts = []
     for k, e in models.items():
         lost = losses(predict_errors(e["predict"]), comparison)
