@@ -20,8 +20,9 @@ def member_notes(run_dir, run, member) -> list[str]:
     seeds = info.get("seeds") if isinstance(info, dict) and "members" in info else None
     if not seeds:
         return []
-    how = "given by --member" if member is not None else "the best test loss; --member SEED " \
-          "chooses another"
+    chosen_on = "validation" if (info.get("split") or {}).get("validation") else "test"
+    how = "given by --member" if member is not None else \
+        f"the best {chosen_on} loss; --member SEED chooses another"
     return [f"{run_dir} is an ensemble of {len(seeds)} seeds; this is seed {run.seed} ({how})"]
 
 
