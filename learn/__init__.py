@@ -13,6 +13,13 @@ Core API::
 from __future__ import annotations
 
 from softpinn.errors import NonFiniteStart, TrainingDiverged, UserError
+from softpinn.learn._actuator import (
+    identify_actuator,
+    resolve_actuator,
+    run_actuator,
+    with_actuator,
+)
+from softpinn.learn._advice import recording_defaults
 from softpinn.learn._baseline_errors import BaselineErrors, range_box
 from softpinn.learn._baseline_errors import rollout_errors as baseline_rollout_errors
 from softpinn.learn._baselines import (
@@ -118,6 +125,11 @@ __all__ = [
     "RESUMABLE",
     "rk4_step",
     "range_box",
+    "identify_actuator",
+    "recording_defaults",
+    "resolve_actuator",
+    "run_actuator",
+    "with_actuator",
     "rollout",
     "baseline_rollout_errors",
     "rollout_loss",

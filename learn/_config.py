@@ -13,9 +13,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from softpinn.errors import UserError
+from softpinn.learn._actuator import check_actuator_setting
 from softpinn.learn._data import ACCEL_LABELS
 from softpinn.learn._losses import ACCEL_SPACES
 from softpinn.learn._models import ModelConfig
+from softpinn.learn._splits import check_validation_setting
 from softpinn.learn._velocity import MOMENTA
 
 FORMAT = "softpinn-run"
@@ -128,6 +130,10 @@ class TrainConfig:
         None, "loss", "horizons in steps of loss 'rollout', e.g. 1,4,16,64: stage i of S trains "
         "at the i-th horizon from epoch i*epochs/S on (spread evenly over the AdamW epochs); "
         "the held-out loss and L-BFGS use the last (default: rollout-steps throughout)")
+    actuator: str = _f(
+        "auto", "loss", "lag and dead time between the recorded u and the arm "
+        "(softpinn/actuator.py): TAU:DELAY in s (comma lists: one per input), none, data (the "
+        "file's), identify (fitted to the data) or auto (data, else identify on imports)")
     substeps: int = _f(1, "loss", "RK4 sub-steps per pair")
     input_hold: str = _f("constant", "loss", "the input between two samples: held or "
                          "interpolated linearly", INPUT_HOLDS)
@@ -279,7 +285,8 @@ class TrainConfig:
             raise UserError(f"init: expected a run folder, got {self.init!r}")
         if isinstance(self.test_trajectories, list):
             object.__setattr__(self, "test_trajectories", tuple(self.test_trajectories))
-        self._check_validation()
+        object.__setattr__(self, "validation", check_validation_setting(self.validation))
+        check_actuator_setting(self.actuator, self.model.m)
         self._check_accel_weights()
         if self.accel_labels != "recorded" and self.loss != "accel":
             raise UserError(
@@ -325,20 +332,6 @@ class TrainConfig:
                             f"leave out --rollout-steps ({self.rollout_steps}) or give {h[-1]}")
         object.__setattr__(self, "rollout_schedule", h)
         object.__setattr__(self, "rollout_steps", h[-1])
-
-    def _check_validation(self):
-        """``validation``'s type (its fit to the data: :func:`learn._splits.validation_split`)."""
-        v = self.validation
-        if isinstance(v, list):
-            object.__setattr__(self, "validation", v := tuple(v))
-        ok = (v is None or v == "auto"
-              or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
-              or (isinstance(v, float) and 0.0 < v < 1.0)
-              or (isinstance(v, tuple) and len(v) > 0 and all(
-                  isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in v)))
-        if not ok:
-            raise UserError(f"validation: expected 'auto', a count >= 0, a fraction in (0, 1) "
-                            f"or trajectory ids (--validation), got {v!r}")
 
     def _check_accel_space(self):
         """``accel_space`` "force" (eq. 4's residual, M̂ q̈ + Ĉ q̇ + D̂ q̇ + Ĝ - A u): loss

@@ -153,3 +153,19 @@ def validation_split(
     rng = np.random.default_rng(seed)
     chosen = np.sort(rng.choice(train_ids, size=count, replace=False))
     return np.setdiff1d(train_ids, chosen), chosen, None
+
+
+def check_validation_setting(v):
+    """``TrainConfig.validation``'s type (its fit to the data: :func:`validation_split`); a list
+    becomes a tuple."""
+    if isinstance(v, list):
+        v = tuple(v)
+    ok = (v is None or v == "auto"
+          or (isinstance(v, int) and not isinstance(v, bool) and v >= 0)
+          or (isinstance(v, float) and 0.0 < v < 1.0)
+          or (isinstance(v, tuple) and len(v) > 0 and all(
+              isinstance(i, int) and not isinstance(i, bool) and i >= 0 for i in v)))
+    if not ok:
+        raise UserError(f"validation: expected 'auto', a count >= 0, a fraction in (0, 1) "
+                        f"or trajectory ids (--validation), got {v!r}")
+    return v

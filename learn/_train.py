@@ -26,6 +26,12 @@ import numpy as np
 from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn import distributed
+from softpinn.learn._actuator import (
+    RESOLVED_FROM_DATA,
+    resolve_actuator,
+    run_actuator,
+    with_actuator,
+)
 from softpinn.learn._advice import setting_warnings, warn_setting
 from softpinn.learn._config import (
     ENSEMBLE_MODES,
@@ -236,6 +242,8 @@ def train(
         if (config is not None and config.momenta == "auto"
                 and stored_cfg.momenta != config.momenta):
             config = dataclasses.replace(config, momenta=stored_cfg.momenta)  # auto: as decided
+        if config is not None and config.actuator in RESOLVED_FROM_DATA:
+            config = dataclasses.replace(config, actuator=stored_cfg.actuator)  # as resolved
         changed = config is not None and config != stored_cfg
         config = resumed_config(stored_cfg, config, run_dir) if changed else stored_cfg
         changed = config != stored_cfg
@@ -272,6 +280,14 @@ def train(
         )
         train_ids, val_ids, note = validation_split(data, train_ids, config.validation,
                                                     seed=config.split_seed)
+    if resume:
+        actuator_info = stored.get("actuator")
+    else:  # the actuator's numbers, once: the run stores them (learn/_actuator.py)
+        asked = config.actuator
+        actuator, told = resolve_actuator(asked, data, train_ids)
+        config = dataclasses.replace(config, actuator=actuator.text())
+        actuator_info = {**actuator.to_dict(), "setting": asked, "note": told}
+    data = with_actuator(data, run_actuator(config.actuator, data.m))
     state = config.model.state_kind
     if config.loss == "rollout":
         check_rollout_schedule(config, data, train_ids)
@@ -319,6 +335,7 @@ def train(
         "pairs": {"train": train_np.count, "test": test_np.count, "batch": batch,
                   **({"validation": val_np.count} if val_ids.size else {})},
         **({"notes": [note]} if note else {}),
+        **({"actuator": actuator_info} if actuator_info else {}),
         "devices": devices,
         "steps_per_epoch": prog.steps,
         "ensemble_mode": mode,

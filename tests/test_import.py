@@ -112,6 +112,25 @@ def test_orientation_round_trip(sim, tmp_path, kind):
     assert any("not observable" in note for note in result.notes)
 
 
+def test_observed_only_leaves_out_the_stretch(sim, tmp_path, capsys):
+    path = write_csv(tmp_path / "imu.csv", columns(sim, state="quaternion"))
+    full = import_recordings([path], "task4", orientation_kind="quaternion",
+                             smooth="savgol:21:3").data
+    result = import_recordings([path], "task4", orientation_kind="quaternion",
+                               smooth="savgol:21:3", observed_only=True)
+    data = result.data
+    assert data.q.shape[1] == data.qd.shape[1] == data.p.shape[1] == 2
+    np.testing.assert_array_equal(data.q, full.q[:, :2])
+    np.testing.assert_array_equal(data.p, full.p[:, :2])  # M_bb q̇_b: the stretch rate is 0
+    assert data.meta["n"] == 2 and data.meta["coordinates"] == ["dx1", "dy1"]
+    assert data.meta["import"]["dropped"] == ["dL1"]
+    assert any("--observed-only" in note for note in result.notes)
+    out = tmp_path / "obs.npz"
+    assert main(["import", str(path), "--model", "task4", "--orientation", "quaternion",
+                 "--observed-only", "--out", str(out)]) == 0
+    assert load_dataset(out).n == 2
+
+
 def test_resampling_to_a_divisor_of_the_rate_gives_the_recorded_samples(sim, tmp_path):
     path = write_csv(tmp_path / "rec.csv", columns(sim))
     data = import_recordings([path], "task4", rate=250.0, test_trajectories=1).data

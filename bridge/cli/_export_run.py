@@ -31,4 +31,7 @@ def run(args) -> int:
         print(f"exported {result['kind']} model (n={result['n']}, m={result['m']}, seed(s) "
               f"{seeds}{', mean' if averaged else ''}) to {args.out}: "
               f"{len(result['functions'])} Functions, model.c/model.h, {lib}")
+        act = result.get("actuator") or {}
+        if act and not act.get("identity", True):
+            print(f"actuator: {act['note']}")
     return 0

@@ -25,6 +25,7 @@ def run(args) -> int:
         rate=args.rate,
         test_trajectories=args.test_trajectories,
         differences=args.differences,
+        observed_only=args.observed_only,
     )
     data = result.data
     write_dataset(out, data, force=args.force)

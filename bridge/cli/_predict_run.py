@@ -41,6 +41,8 @@ from softpinn.learn import (
     load_dataset,
     predict,
     read_json,
+    run_actuator,
+    with_actuator,
 )
 
 #: ``config.json``'s model kind of a ``train --model linear`` run
@@ -82,6 +84,7 @@ def run(args) -> int:
     if not args.no_baselines:
         info = read_json(Path(out["run"]) / "config.json")
         data = load_dataset(args.data, n=info["model"]["n"], m=info["model"]["m"])
+        data = with_actuator(data, run_actuator(info["train"].get("actuator", "auto"), data.m))
         comparison = _comparison(info, data, out["trajectories"], horizons, args.reset_every,
                                  info["train"].get("input_hold", "constant"))
         if comparison is not None:
@@ -194,6 +197,8 @@ def _comparison(info, data, test, horizons, reset_every, input_hold):
     source = info["dataset"].get("path")
     try:
         fit_data = load_dataset(source, n=data.n, m=data.m)
+        fit_data = with_actuator(fit_data, run_actuator(info["train"].get("actuator", "auto"),
+                                                        data.m))
     except (UserError, OSError, TypeError, ValueError):
         fit_data = None
     if fit_data is None or fit_data.sha256 != info["dataset"]["sha256"]:
@@ -256,6 +261,7 @@ def _predict_linear(args, info, traj, horizons) -> int:
     for name, kind, _ in BASELINES:
         models.append((name, baseline_from_dict(read_json(run_dir / info["model"]["files"][kind]))))
     data = load_dataset(args.data, n=info["model"]["n"], m=info["model"]["m"])
+    data = with_actuator(data, run_actuator(info.get("actuator", {}).get("text", "none"), data.m))
     same = data.sha256 == info["dataset"]["sha256"]
     if traj == "auto":
         traj = "test" if same else "all"

@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 from tqdm.auto import tqdm
 
+from softpinn.actuator import Actuator
 from softpinn.bridge.analysis.baselines import BASELINES
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.cli.bars import TrainBar
@@ -31,9 +32,12 @@ from softpinn.learn import (
     load_dataset,
     load_run,
     read_json,
+    recording_defaults,
+    resolve_actuator,
     resolve_devices,
     split_trajectories,
     train,
+    with_actuator,
 )
 from softpinn.learn.distributed import initialize, is_writer
 
@@ -74,6 +78,12 @@ def run(args) -> int:
                 raise UserError("give --accel-weights or --accel-weights-from, not both")
             args.accel_weights = _weights_from(args.accel_weights_from, data, train_ids,
                                                args.accel_labels)
+        chosen, why = recording_defaults(data, _pairs(data, train_ids), mc.kind,
+                                         getattr(args, "given", ()))
+        for name, value in chosen.items():
+            setattr(args, name, value)
+        if why and not args.json:
+            print(f"softpinn: note: {why}", file=sys.stderr)
         config = TrainConfig(
             model=mc, test_trajectories=test,
             **{f.name: getattr(args, f.name) for f in TrainConfig.settings()
@@ -109,9 +119,16 @@ def run(args) -> int:
         spread = f" ± {bt['std']:.3e}" if len(m["seeds"]) > 1 else ""
         print(f"best test loss: {bt['mean']:.4e}{spread}   (best seed {m['best_member']})")
         print(held_out_text(result.run_dir, config, data))
-        print(_validation_text(read_json(Path(result.run_dir) / "config.json")))
+        info = read_json(Path(result.run_dir) / "config.json")
+        print(_validation_text(info))
+        print(_actuator_text(info))
         print(f"run directory: {result.run_dir}")
     return 0
+
+
+def _pairs(data, train_ids) -> int:
+    """The training pairs of ``train_ids`` (consecutive samples of one trajectory)."""
+    return int(sum(max(0, data.indices(int(i)).size - 1) for i in train_ids))
 
 
 def _validation_text(info: dict) -> str:
@@ -123,6 +140,19 @@ def _validation_text(info: dict) -> str:
                 "recorded)")
     notes = info.get("notes") or ["the test loss picks the best epoch"]
     return f"validation: none; {'; '.join(notes)}"
+
+
+def _actuator_text(info: dict) -> str:
+    """The actuator the run applies to the inputs (--actuator) and, where it was chosen from
+    the data, how."""
+    act = info.get("actuator") or {}
+    if not act:
+        return "actuator: none"
+    note = act.get("note")
+    if note:
+        return note
+    text = Actuator.from_dict({k: act[k] for k in ("time_constant", "delay")}).describe()
+    return f"actuator: {text.replace('(given)', '(--actuator)')}"
 
 
 #: the files of a linear baseline run, in the order written (config.json, the run's mark, last)
@@ -144,8 +174,10 @@ def train_linear(args) -> int:
     test = args.test_count if args.test_trajectories is None else tuple(args.test_trajectories)
     train_ids, test_ids = (a.tolist() for a in split_trajectories(data, test=test,
                                                                    seed=args.split_seed))
+    actuator, told = resolve_actuator(args.actuator, data, train_ids)
+    fit_data = with_actuator(data, actuator)
     start = time.perf_counter()
-    models = {kind: fit_baseline(kind, data, train_ids, **options)
+    models = {kind: fit_baseline(kind, fit_data, train_ids, **options)
               for _, kind, options in BASELINES}
     seconds = time.perf_counter() - start
     split = {"train": train_ids, "test": test_ids}
@@ -158,7 +190,9 @@ def train_linear(args) -> int:
                         "names": {kind: name for name, kind, _ in BASELINES}},
               "dataset": dataset_info(data), "split": split,
               "test_trajectories": list(test) if isinstance(test, tuple) else test,
-              "split_seed": args.split_seed}
+              "split_seed": args.split_seed,
+              "actuator": {**actuator.to_dict(), "text": actuator.text(),
+                           "setting": args.actuator, "note": told}}
     out = Path(args.out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -179,6 +213,7 @@ def train_linear(args) -> int:
           f"rms {arx['one_step_rms']:.4e} (spectral radius {arx['spectral_radius']:.4g}), "
           f"linear2 q̈ rms {lin['accel_rms']:.4e} (largest real eigenvalue "
           f"{lin['max_real_eigenvalue']:.3g})")
+    print(_actuator_text(config))
     print(held_out_text(out, SimpleNamespace(test_trajectories=test,
                                              split_seed=args.split_seed), data))
     print(f"run directory: {out}")

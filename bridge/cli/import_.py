@@ -43,6 +43,10 @@ def add_arguments(p) -> None:
     p.add_argument("--test-trajectories", type=int, default=0, metavar="K",
                    help="the last K trajectories form the test split recorded in meta (the "
                    "paper: the last 8 of 128)")
+    p.add_argument("--observed-only", action="store_true",
+                   help="leave out the coordinates the recordings cannot determine (with "
+                   "--orientation: the stretch, otherwise set to 0), so networks learn only "
+                   "what was measured")
     p.add_argument("--force", action="store_true", help="overwrite an existing DATA.npz")
     p.add_argument("--json", action="store_true",
                    help="print the import's record (meta['import']) as one JSON object")

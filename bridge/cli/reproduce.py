@@ -49,6 +49,12 @@ def add_arguments(p) -> None:
                         "and draw a task's figures of each data set as soon as its models are "
                         "done (the tasks and the experiment; same results, sooner on a machine "
                         "with cores to spare)")
+    p.add_argument("--actuator", default=None, metavar="TAU:DELAY",
+                   help="experiment only: the stand-in's tendons follow their commands through a "
+                        "first-order lag TAU and a dead time DELAY [s] (one value for all inputs "
+                        "or a comma list with one per input, e.g. 0.1:0.06); the commands are "
+                        "recorded as u and the networks and baselines are given the actuator "
+                        "(docs/experiment.md)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 

@@ -24,7 +24,7 @@ NETS = ("mass", "potential", "damping", "input", "hidden")
 LINEAR = "linear"
 #: the flags ``--model linear`` takes (their destinations); every other one is a network's
 LINEAR_FLAGS = frozenset({"model", "out", "force", "quiet", "json", "test_trajectories",
-                          "test_count", "split_seed"})
+                          "test_count", "split_seed", "actuator"})
 #: Train settings whose flags are not generated one to one from their field.
 CUSTOM = ("test_trajectories",)
 #: train flags the sweep spells otherwise or leaves out: its --seeds and --samples are its own,
@@ -118,7 +118,8 @@ def add_setting_flags(parser, *, skip=CUSTOM, title=str, split_flags=_split_flag
                 kw["choices"] = f.metadata["choices"]
             else:
                 kw["type"] = hint
-                kw["metavar"] = "N" if hint is int else ("RUN" if f.name == "init" else "X")
+                named = {"init": "RUN", "actuator": "TAU:DELAY|..."}
+                kw["metavar"] = "N" if hint is int else named.get(f.name, "X")
             g.add_argument(f"--{f.name.replace('_', '-')}", **kw)
         if group == "split":
             split_flags(g)

@@ -14,6 +14,10 @@ reference's centre. It writes into ``out``:
 * ``traces/<reference>.npz``: the time series (t, r, and y, u, x, solve seconds, success per
   controller) for your own plots;
 * ``models/<name>/``: each run's export (``softpinn export``'s files).
+
+Runs with an actuator (issue 43 item 2) plan the commands through it (:mod:`.actuation`); the
+plant is then the arm behind that actuator, and the true and linearised controllers know it too
+(runs with different actuators are refused: they would need different plants).
 """
 
 from __future__ import annotations
@@ -36,10 +40,12 @@ import numpy as np
 from softpinn._version import __version__
 from softpinn.bridge.base import outputs
 from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.control.actuation import delay_steps
 from softpinn.bridge.control.config import REFERENCES, ControlConfig
 from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
 from softpinn.bridge.control.models import (
     PredictionModel,
+    actuate,
     from_run,
     from_true,
     linearised,
@@ -219,10 +225,14 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
     finally:
         scratch.cleanup()
 
+    act = _plant_actuator(models, runs)
+    models = [actuate(pm, act) if pm.info.get("source") in ("true", "linearised") else pm
+              for pm in models]
     refs = _references(tm, output, config.references, dt=mpc_config.dt,
-                       horizon=mpc_config.horizon, center=center, radius=radius,
+                       horizon=mpc_config.horizon + delay_steps(act, spec.m, mpc_config.dt),
+                       center=center, radius=radius,
                        period=config.period, hold=config.hold, duration=config.duration)
-    plant_fn = plant(tm, mpc_config.dt)
+    plant_fn = plant(tm, mpc_config.dt, actuator=act)
 
     controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}
     if progress_total is not None:
@@ -238,7 +248,7 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
                                 "compile": mpc.compile_info}
         for rname, ref in refs.items():
             res = closed_loop(mpc, plant_fn, ref["x0"], ref["R"], ref["steps"], u0=ref["u0"],
-                              progress=progress)
+                              progress=progress, actuator=act)
             met = metrics(res)
             if pm.info.get("q_range"):  # a learned model: did the arm leave its data?
                 met["outside_data"] = outside_data(res["x"], pm.info["q_range"], mpc_config.dt,
@@ -256,7 +266,9 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
         "machine": machine(),
         "load_average": _load(),
         "plant": {"integrator": "cvodes", "rtol": 1e-8, "atol": 1e-10,
-                  "feedback": "the exact state (q, qd), no noise", "hold": "zero-order"},
+                  "feedback": "the exact state (q, qd), no noise", "hold": "zero-order",
+                  **({"actuator": {**act.to_dict(), "text": act.text(),
+                                   "what": act.describe()}} if act is not None else {})},
         "output": {"what": "tip position" if spec.kind in ("spatial-pcc", "planar-pcc")
                    else "q", "components": components, "unit": unit},
         "config": dataclasses.asdict(mpc_config),
@@ -280,6 +292,21 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
         outputs.record(out_dir, outputs.written_files(out_dir))
     result["traces"] = traces
     return result
+
+
+def _plant_actuator(models, runs):
+    """The actuator of the runs' models (None where none has one); runs with different ones are
+    refused (one plant)."""
+    acts = {}
+    for pm in models:
+        a = pm.actuator
+        if a is not None and not a.is_identity:
+            acts.setdefault(a.text(), a)
+    if len(acts) > 1:
+        raise UserError(f"runs: {', '.join(str(r) for r in runs)} have different actuators "
+                        f"({'; '.join(acts)}); control steers one plant: give runs trained "
+                        "with the same actuator")
+    return next(iter(acts.values()), None)
 
 
 def _run_kind(run) -> str:
@@ -348,6 +375,8 @@ def _write_traces(out: Path, refs, traces, dt: float) -> list[Path]:
             arrays[f"{key}__y"] = res["y"]
             arrays[f"{key}__x"] = res["x"]
             arrays[f"{key}__u"] = res["u"]
+            if "u_arm" in res:  # behind an actuator: what reached the arm
+                arrays[f"{key}__u_arm"] = res["u_arm"]
             arrays[f"{key}__seconds"] = res["seconds"]
             arrays[f"{key}__success"] = res["success"]
             arrays[f"{key}__iterations"] = res["iterations"]

@@ -33,7 +33,7 @@ def sqp_functions(mod: PredictionModel, cfg: MPCConfig, u_ref: np.ndarray
     ``cost``, ``predict``, ``step`` and, with approximate sensitivities, ``gn_exact`` (and
     ``gn_lifted``)."""
     n, m, N = mod.n, mod.m, cfg.horizon
-    nx, ny = 2 * n, mod.output.size1_out(0)
+    nx, ny = mod.nx, mod.output.size1_out(0)  # (q, q̇) and any actuator lag states
     frozen = cfg.sensitivities in ("frozen", "lifted")
     stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps, frozen=frozen)
     xs = ca.SX.sym("x", nx)

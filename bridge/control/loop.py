@@ -6,6 +6,11 @@ exact state: the controller measures (q, q̇) without noise. :func:`closed_loop`
 controller for a number of steps and returns the states, outputs, inputs and per-step solve
 information; :func:`metrics` reduces them to the tracking error (RMS and max of ‖y - r‖),
 input effort, solver failures and solve times.
+
+With an actuator (issue 43 item 2, :mod:`.actuation`) the plant is the arm behind it: the
+controller's commands wait the dead time (a shift register of whole steps, per input) and then
+drive the lag, whose states cvodes integrates with the arm's; the loop starts it settled under
+the first command.
 """
 
 from __future__ import annotations
@@ -13,6 +18,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from softpinn.actuator import Actuator
+from softpinn.bridge.control.actuation import actuated_ode, lagged_inputs, settled
 from softpinn.errors import UserError
 
 __all__ = ["plant", "closed_loop", "metrics", "outside_data"]
@@ -22,19 +29,26 @@ __all__ = ["plant", "closed_loop", "metrics", "outside_data"]
 DATA_MARGIN = 0.05
 
 
-def plant(true_model, dt: float, *, rtol: float = 1e-8, atol: float = 1e-10) -> ca.Function:
-    """cvodes over one step: (x0 = (q, q̇), p = u held) -> xf = x(dt)."""
+def plant(true_model, dt: float, *, rtol: float = 1e-8, atol: float = 1e-10,
+          actuator: Actuator | None = None) -> ca.Function:
+    """cvodes over one step: (x0 = (q, q̇), p = u held) -> xf = x(dt). With an ``actuator``
+    that has a lag, x0 and xf carry its lag states after (q, q̇) and p is the command reaching
+    the lag (the dead time is :func:`closed_loop`'s)."""
     ode = true_model.functions["ode"]
     ode = ode if ode.is_a("SXFunction") else ode.expand()
     n, m = true_model.n, true_model.m
-    x, u = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m)
+    lags = lagged_inputs(actuator, m).size
+    if lags:
+        ode = actuated_ode(ode, actuator, m)
+    x, u = ca.SX.sym("x", 2 * n + lags), ca.SX.sym("u", m)
     opts = {"abstol": atol, "reltol": rtol, "max_num_steps": 100000,
             "disable_internal_warnings": True}
     return ca.integrator("plant", "cvodes", {"x": x, "p": u, "ode": ode(x, u)}, 0.0, dt, opts)
 
 
 def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, steps: int,
-                *, u0=None, at_rest: bool | None = None, progress=None) -> dict:
+                *, u0=None, at_rest: bool | None = None, progress=None,
+                actuator: Actuator | None = None) -> dict:
     """Run ``steps`` control steps from the true state x0 = (q, q̇).
 
     ``reference`` has shape (steps + horizon, ny): r_k for k = 1 ... steps + horizon (r_k is
@@ -44,6 +58,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     the exact ones; 0 otherwise), ``lifted_iterations`` (steps taken about the last plan's
     states, sensitivities "lifted") and ``cost`` per step, and ``diverged`` (the plant failed or
     left the finite numbers; then K < steps). ``progress``: called once per step.
+    ``actuator``: the plant's (``plant_fn`` built with it, :func:`plant`); then ``u`` holds the
+    commands and ``u_arm`` (K, m) the actuator's output at each step's start.
     """
     model = controller.model
     n, m, N = model.n, model.m, controller.config.horizon
@@ -55,23 +71,49 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     if x.size != 2 * n:
         raise UserError(f"x0: expected {2 * n} values (q, q̇), got {x.size}")
     u_prev = np.zeros(m) if u0 is None else np.asarray(u0, float).ravel()
+    ident = actuator is None or actuator.is_identity
+    lagged = lagged_inputs(actuator, m)
+    shift = (np.zeros(m, int) if ident else
+             np.rint(actuator.per_input(m)[1] / controller.config.dt).astype(int))
+    if not ident and np.any(np.abs(shift * controller.config.dt - actuator.per_input(m)[1])
+                            > 1e-9):
+        raise UserError(f"control: the plant's actuator dead time {actuator.text()} is no "
+                        f"whole number of control steps (dt {controller.config.dt:g} s)")
+    sent = [u_prev.copy() for _ in range(int(shift.max()) + 1)]  # the last commands, newest last
+    lag = settled(actuator, m, u_prev)  # the plant's lag states
+
+    def advance(x, lag, c):
+        """The plant over one step under the command c reaching the lag: (x, lag, u_arm)."""
+        arm = c.copy()
+        arm[lagged] = lag
+        z = np.asarray(plant_fn(x0=np.concatenate([x, lag]), p=c)["xf"]).ravel()
+        return z[:2 * n], z[2 * n:], arm
+
+    arms = []
+    delay = int(getattr(controller, "delay", 0))
     xs, us, ok, status, secs, its, costs, exact, lifted = [x], [], [], [], [], [], [], [], []
     diverged = False
     if at_rest is None:  # watch the arm for one step before the loop starts
         at_rest = False
         if not np.any(x[n:]):
             try:
-                x1 = np.asarray(plant_fn(x0=x, p=u_prev)["xf"]).ravel()
+                x1 = advance(x, lag, u_prev)[0]
                 at_rest = bool(np.all(np.abs(x1 - x) <= 1e-9 * (1.0 + np.abs(x))))
             except RuntimeError:
                 pass
     controller.reset(rest=at_rest)
     for k in range(steps):
-        u, info = controller.solve(x[:n], x[n:], reference[k:k + N], u_prev)
+        rows = reference[k:k + N + delay]  # a dead time: the reference D steps further on
+        if len(rows) < N + delay:
+            rows = np.concatenate([rows, np.repeat(rows[-1:], N + delay - len(rows), axis=0)])
+        u, info = controller.solve(x[:n], x[n:], rows, u_prev)
+        sent = [*sent[1:], np.asarray(u, float).copy()]
+        arriving = np.array([sent[-1 - shift[j]][j] for j in range(m)])
         try:
-            x_next = np.asarray(plant_fn(x0=x, p=u)["xf"]).ravel()
+            x_next, lag_next, arm = advance(x, lag, arriving)
         except RuntimeError:  # cvodes gave up: the input drove the plant somewhere wild
-            x_next = np.full_like(x, np.nan)
+            x_next, lag_next, arm = np.full_like(x, np.nan), lag, arriving
+        arms.append(arm)
         us.append(u)
         ok.append(bool(info["success"]))
         status.append(str(info.get("status")))
@@ -86,12 +128,13 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
         if not np.all(np.isfinite(x_next)):
             diverged = True
             break
-        x = x_next
+        x, lag = x_next, lag_next
         xs.append(x)
     xs = np.array(xs)
     ys = np.array([np.asarray(model.output(xi[:n])).ravel() for xi in xs])
     r = np.concatenate([reference[:1], reference[: len(xs) - 1]])
-    return {"x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
+    extra = {} if ident else {"u_arm": np.array(arms).reshape(-1, m)}
+    return {**extra, "x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
             "success": np.array(ok, bool), "status": status, "seconds": np.array(secs),
             "iterations": np.array(its, int), "exact_iterations": np.array(exact, int),
             "lifted_iterations": np.array(lifted, int),

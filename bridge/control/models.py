@@ -8,6 +8,10 @@ and an output map ``output(q) -> y`` (the arm's tip position, or q itself). Sour
   Hamiltonian network, ``M``); :func:`from_run` exports a trained run first;
 * :func:`from_true`: the exact PCC model's ODE (eqs. 13-24), the best case;
 * :func:`linearised`: the true model linearised at one state and input (ẋ = f₀ + Jx Δx + Ju Δu).
+
+A model with an actuator (issue 43 item 2; an export of a run that has one, or
+:func:`actuate`) has the actuator's lag states appended to its state (:mod:`.actuation`): its
+``u`` is then the commands, and ``actuator`` says the lag and the dead time.
 """
 
 from __future__ import annotations
@@ -22,13 +26,15 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from softpinn.actuator import Actuator
+from softpinn.bridge.control.actuation import actuated, lagged_inputs
 from softpinn.bridge.export import export_run, load_exported, model_params
 from softpinn.bridge.export.layers import mlp
 from softpinn.errors import UserError
 from softpinn.learn import load_run
 from softpinn.symbolic import planar_plate, spatial_tip
 
-__all__ = ["PredictionModel", "from_export", "from_run", "from_true", "linearised",
+__all__ = ["PredictionModel", "actuate", "from_export", "from_run", "from_true", "linearised",
            "tip_output", "output_label", "resolve_run"]
 
 
@@ -37,7 +43,9 @@ class PredictionModel:
     """``field`` (x, u) -> ẋ (an SX Function; MX for a black box rebuilt from its weights),
     ``to_state`` (q, q̇) -> x, ``output`` q -> y.
 
-    ``info``: where the model comes from (kind, run, export directory, seconds to export)."""
+    ``info``: where the model comes from (kind, run, export directory, seconds to export).
+    ``actuator``: the actuator between the commands u and the arm (None: the identity); its
+    lag states follow x in the field's state (``nx`` values in all)."""
 
     name: str
     n: int
@@ -46,11 +54,17 @@ class PredictionModel:
     to_state: Callable[[np.ndarray, np.ndarray], np.ndarray]
     output: ca.Function
     info: dict = field(default_factory=dict)
+    actuator: Actuator | None = None
+
+    @property
+    def nx(self) -> int:
+        """The size of the field's state: (q, q̇) or (q, p), then the actuator's lag states."""
+        return 2 * self.n + lagged_inputs(self.actuator, self.m).size
 
     def __post_init__(self):
-        if self.field.size1_in(0) != 2 * self.n or self.field.size1_in(1) != self.m:
+        if self.field.size1_in(0) != self.nx or self.field.size1_in(1) != self.m:
             raise UserError(
-                f"prediction model {self.name}: field must take x ({2 * self.n}) and u "
+                f"prediction model {self.name}: field must take x ({self.nx}) and u "
                 f"({self.m}), got ({self.field.size1_in(0)}) and ({self.field.size1_in(1)})"
             )
         if self.output.size1_in(0) != self.n:
@@ -118,8 +132,26 @@ def from_export(directory, output: ca.Function, name: str | None = None) -> Pred
             "data_spec": meta.get("training", {}).get("data_spec"),
             "q_range": meta.get("training", {}).get("q_range"),
             "field": "MX from the run's weights" if rebuilt is not None else "SX"}
-    return PredictionModel(name or meta["kind"], n, m, rebuilt or field_fn, to_state, output,
-                           info)
+    model = PredictionModel(name or meta["kind"], n, m, rebuilt or field_fn, to_state, output,
+                            info)
+    act = meta.get("actuator")  # exports written before actuators have none
+    if act and not act.get("identity", False):
+        act = Actuator.from_dict({k: act[k] for k in ("time_constant", "delay", "source")
+                                  if k in act}, m)
+        model = actuate(model, act)
+    return model
+
+
+def actuate(model: PredictionModel, act: Actuator | None) -> PredictionModel:
+    """``model`` driven through the actuator ``act`` (:mod:`.actuation`): its state gets the
+    lag states, its input becomes the commands. The identity (or None) returns ``model``."""
+    if act is None or act.is_identity:
+        return model
+    if model.actuator is not None and not model.actuator.is_identity:
+        raise UserError(f"prediction model {model.name}: already has an actuator")
+    info = {**model.info, "actuator": {**act.to_dict(), "text": act.text()}}
+    return PredictionModel(model.name, model.n, model.m, actuated(model.field, act, model.m),
+                           model.to_state, model.output, info, act)
 
 
 def _blackbox_mx(meta: dict, field_sx: ca.Function) -> ca.Function | None:

@@ -26,6 +26,12 @@ with u_{-1} the input applied at the last step. Two solvers:
   task 4 (docs/control.md; ``codegen`` does not apply).
 
 Both warm-start from the previous plan shifted by one step.
+
+A model with an actuator (issue 43 item 2, :mod:`.actuation`) plans the commands: its state
+carries the actuator's lag states, which the controller tracks from the commands it sent (exact
+for a command held over the step), and with a dead time of D steps it first rolls the model
+over the D commands already sent and plans from the state they lead to, against the
+reference D steps later (the earlier outputs no command of this plan can change).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import time
 import casadi as ca
 import numpy as np
 
+from softpinn.bridge.control.actuation import delay_steps, lagged_inputs, settled
 from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
 from softpinn.bridge.control.gauss_newton import sqp_functions
 from softpinn.bridge.control.models import PredictionModel
@@ -75,9 +82,10 @@ def _substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int
     if operating_point is None or config.stiffness == 0:
         return config.substeps
     q, qd, u = (np.asarray(v, float).ravel() for v in operating_point)
-    x0 = np.asarray(model.to_state(q, qd), float)
+    x0 = np.concatenate([np.asarray(model.to_state(q, qd), float).ravel(),
+                         settled(model.actuator, model.m, u)])
     sym = _sym(model.field)
-    xs, us = sym.sym("x", 2 * model.n), sym.sym("u", model.m)
+    xs, us = sym.sym("x", model.nx), sym.sym("u", model.m)
     jac = ca.Function("stiffness", [xs, us], [ca.jacobian(model.field(xs, us), xs)])
     J = np.asarray(jac(x0, u))
     if not np.all(np.isfinite(J)):
@@ -106,11 +114,17 @@ class MPC:
         if self.substeps != config.substeps:
             config = dataclasses.replace(config, substeps=self.substeps)
         self.config = config
-        n, m, N = model.n, model.m, config.horizon
+        m, N = model.m, config.horizon
         if m < 1:
             raise UserError(f"prediction model {model.name}: has no inputs (m = 0); there is "
                             "nothing to control")
-        self.nx, self.m, self.N = 2 * n, m, N
+        self.nx, self.m, self.N = model.nx, m, N
+        #: the actuator's dead time in control steps, its lagged inputs and their decay per step
+        self.delay = delay_steps(model.actuator, m, config.dt)
+        self._lagged = lagged_inputs(model.actuator, m)
+        tau = (model.actuator.per_input(m)[0][self._lagged] if self._lagged.size
+               else np.zeros(0))
+        self._decay = np.exp(-config.dt / tau) if tau.size else np.zeros(0)
         self.ny = model.output.size1_out(0)
         self._lbu = _vector(config.u_min, m, -np.inf, "u_min")
         self._ubu = _vector(config.u_max, m, np.inf, "u_max")
@@ -255,10 +269,13 @@ class MPC:
         return np.concatenate([self._U[:, 1:], self._U[:, -1:]], axis=1)  # shifted by one step
 
     def predict(self, q, qd, U) -> np.ndarray:
-        """The outputs (N, ny) the prediction model expects for the inputs U (N, m) (SQP)."""
+        """The outputs (N, ny) the prediction model expects for the inputs U (N, m) (SQP; an
+        actuator's lag from its tracked state, or settled under U's first row; no dead time)."""
         if self.config.solver != "sqp":
             raise UserError("predict: only the sqp solver keeps the prediction function")
-        x0 = np.asarray(self.model.to_state(q, qd), float)
+        y = (self._y if self._y is not None
+             else settled(self.model.actuator, self.m, np.asarray(U, float)[0]))
+        x0 = np.concatenate([np.asarray(self.model.to_state(q, qd), float).ravel(), y])
         return np.asarray(self._predict(x0, np.asarray(U, float).T, self._d)).T
 
     # ------------------------------------------------------------------ IPOPT
@@ -344,6 +361,28 @@ class MPC:
         self._X_d = self._d.copy()
         self._x_next = None
         self._rest = bool(rest)
+        self._y = self._sent = None  # the actuator's lag states, the commands in transit
+
+    def _measured(self, q, qd, u_prev) -> np.ndarray:
+        """The model's state now: the measured (q, q̇) (or (q, p)) and the actuator's lag
+        states as the controller tracks them (settled under ``u_prev`` at the first solve)."""
+        if self._y is None:
+            self._y = np.asarray(u_prev, float).ravel()[self._lagged]
+            self._sent = [np.asarray(u_prev, float).ravel().copy() for _ in range(self.delay)]
+        return np.concatenate([np.asarray(self.model.to_state(q, qd), float).ravel(), self._y])
+
+    def _reference(self, reference) -> np.ndarray:
+        """(N, ny) rows from r_{D+1} on: ``reference`` holds N + D rows from r_1, or N (the last
+        row then holds for the D rows past it)."""
+        R = np.asarray(reference, float)
+        N, D = self.N, self.delay
+        if R.ndim == 2 and R.shape[1] == self.ny and D and R.shape[0] in (N, N + D):
+            R = np.concatenate([R, np.repeat(R[-1:], N + D - R.shape[0], axis=0)])[D:]
+        if R.shape != (N, self.ny):
+            rows = f"{N}" if not D else f"{N} or {N + D} (horizon + dead time)"
+            raise UserError(f"reference: expected shape ({rows}, {self.ny}) (horizon, "
+                            f"outputs), got {R.shape}")
+        return R
 
     @property
     def disturbance(self) -> np.ndarray:
@@ -358,13 +397,12 @@ class MPC:
 
     def solve(self, q, qd, reference, u_prev):
         """The first input of the plan from the measured (q, q̇), and what the solve did."""
-        R = np.asarray(reference, float)
-        if R.shape != (self.N, self.ny):
-            raise UserError(f"reference: expected shape ({self.N}, {self.ny}) (horizon, "
-                            f"outputs), got {R.shape}")
+        R = self._reference(reference)
         u_prev = np.asarray(u_prev, float).reshape(self.m)
         t0 = time.perf_counter()
-        x0 = np.asarray(self.model.to_state(q, qd), float)
+        x0 = self._measured(q, qd, u_prev)
+        # the command that reaches the actuator in this step: one sent D steps ago
+        arriving = self._sent[0] if self.delay else None
         gain = self.config.offset_free
         if gain > 0 and self._x_next is None and self._rest:
             # at rest the arm's next state is x itself: F(x, u) misses it by the model's error
@@ -379,14 +417,23 @@ class MPC:
                 self._r = self._r + self.config.offset_free_rate * miss
                 self._d = self._d + gain * miss + self._r
         self._rest = False
+        start = x0
+        for c in self._sent or ():  # the commands in transit, known: where they lead
+            start = np.asarray(self._step(start, c)).ravel() + self._d
         if self.config.solver == "sqp":
-            u, info = self._solve_sqp(x0, R.T, u_prev)
+            u, info = self._solve_sqp(start, R.T, u_prev)
         else:
-            u, info = self._solve_ipopt(x0, R.T, u_prev)
+            u, info = self._solve_ipopt(start, R.T, u_prev)
         if not np.all(np.isfinite(u)):
             u, info["success"] = u_prev.copy(), False
+        arriving = u if arriving is None else arriving
         if gain > 0:  # what the model expects the state to be after this step
-            self._x_next = np.asarray(self._step(x0, u)).ravel() + self._d
+            self._x_next = np.asarray(self._step(x0, arriving)).ravel() + self._d
             info["disturbance"] = float(np.linalg.norm(self._d))
+        if self._lagged.size:  # the lag under the held command, exactly
+            a = self._decay
+            self._y = a * self._y + (1 - a) * np.asarray(arriving, float)[self._lagged]
+        if self.delay:
+            self._sent = [*self._sent[1:], np.asarray(u, float).copy()]
         info["seconds"] = time.perf_counter() - t0
         return u, info

@@ -10,12 +10,16 @@ with Savitzky-Golay cubics, as ``docs/experiment.md`` does):
 1. **record**: the recordings as CSV files (``softpinn import``'s format) and their settings;
 2. **import**: through ``softpinn import``'s library (``--model experiment --orientation
    quaternion --test-trajectories K``), keeping the observed bending coordinates (dx, dy) only;
-3. **train/<kind>**: a black box, a Lagrangian network and a Hamiltonian network trained from
+3. **actuator**: the lag and dead time between the commands and the rod, identified on the
+   training trajectories (``softpinn train --actuator identify``); every network and baseline
+   below gets the same;
+4. **train/<kind>**: a black box, a Lagrangian network and a Hamiltonian network trained from
    velocities, on the training trajectories, the best epoch chosen on a validation trajectory;
-4. **predict/<kind>**: ``softpinn predict``'s rollout error on the held-out test trajectories at
+5. **predict/<kind>**: ``softpinn predict``'s rollout error on the held-out test trajectories at
    each horizon (1 s, 5 s);
-5. **baselines**: no motion, ARX (order 2) and the linear second-order model, fitted on the
-   same trajectories and scored the same way (:mod:`bridge.analysis.baselines`).
+6. **baselines**: no motion, ARX (order 2) and the linear second-order model, fitted on the
+   same trajectories under the same actuator and scored the same way
+   (:mod:`bridge.analysis.baselines`).
 
     OUT/
       plan.json                 every setting (recordings, variants, networks, horizons)
@@ -43,6 +47,7 @@ from softpinn.bridge.analysis.baselines import BaselineComparison, verdict
 from softpinn.bridge.base import outputs
 from softpinn.bridge.cosserat.settings import NETWORKS, CosseratPlan, make_plan
 from softpinn.bridge.cosserat.stages import (
+    stage_actuator,
     stage_baselines,
     stage_import,
     stage_predict,
@@ -105,23 +110,27 @@ def run_variant(plan: CosseratPlan, variant: str, stages: Stages, progress) -> d
                     "validation_trajectories": plan.validation_trajectories}
     imported = stages.run(f"{variant}/import", imp_settings,
                           lambda f: stage_import(plan, variant, recorded, f))
+    act_settings = {"import": imp_settings, "actuator": plan.actuator}
+    actuator = stages.run(f"{variant}/actuator", act_settings,
+                          lambda f: stage_actuator(plan, imported))
     networks: dict[str, dict] = {}
     train_base = {k: base[k] for k in ("samples", "batch_size", "input_hold", "loss",
                                        "train_seed")}
     for network in plan.networks:
-        settings = {"import": imp_settings, **train_base,
+        settings = {"import": imp_settings, **train_base, "actuator": act_settings,
                     "network": base["networks"][plan.networks.index(network)]}
-        trained = stages.run(f"{variant}/train/{network.kind}", settings,
-                             lambda f, n=network: stage_train(plan, n, imported, f, progress))
+        trained = stages.run(
+            f"{variant}/train/{network.kind}", settings,
+            lambda f, n=network: stage_train(plan, n, imported, actuator, f, progress))
         predicted = stages.run(f"{variant}/predict/{network.kind}",
                                {"train": settings, "horizons": list(plan.horizons)},
                                lambda f, t=trained: stage_predict(plan, imported, t, f))
         networks[network.kind] = {"train": trained, "predict": predicted}
     baselines = stages.run(f"{variant}/baselines",
                            {"import": imp_settings, "horizons": list(plan.horizons),
-                            "input_hold": plan.input_hold},
-                           lambda f: stage_baselines(plan, imported))
-    return {"record": recorded, "import": imported, "networks": networks,
+                            "input_hold": plan.input_hold, "actuator": act_settings},
+                           lambda f: stage_baselines(plan, imported, actuator))
+    return {"record": recorded, "import": imported, "actuator": actuator, "networks": networks,
             "baselines": baselines, "verdicts": verdicts(networks, baselines)}
 
 

@@ -89,6 +89,10 @@ class CosseratPlan:
     input_hold: str
     loss: str
     arm: Mapping[str, Any] = field(default_factory=dict)  # CosseratArm changes (none: defaults)
+    #: the actuator between the recorded commands and the rod (``softpinn train --actuator``):
+    #: ``identify`` (from the training trajectories, as a user without the stand-in's numbers
+    #: would), ``none``, or ``TAU:DELAY``; every network and baseline gets the same
+    actuator: str = "identify"
 
     def network(self, kind: str) -> Network:
         return next(n for n in self.networks if n.kind == kind)

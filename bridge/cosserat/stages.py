@@ -27,7 +27,10 @@ from softpinn.learn import (
     load_dataset,
     predict,
     range_box,
+    resolve_actuator,
+    run_actuator,
     train,
+    with_actuator,
 )
 from softpinn.symbolic import (
     CosseratArm,
@@ -89,6 +92,15 @@ def stage_import(plan: CosseratPlan, variant: str, recorded: dict, folder: Path)
             "test_span_s": min(spans), "notes": list(res.notes)}
 
 
+def stage_actuator(plan: CosseratPlan, imported: dict) -> dict[str, Any]:
+    """The actuator every network and baseline of the variant applies to the recorded commands
+    (``plan.actuator``: identified on the training trajectories, as ``softpinn train
+    --actuator identify`` does; :mod:`softpinn.actuator`)."""
+    data = load_dataset(imported["path"])
+    act, note = resolve_actuator(plan.actuator, data, imported["train"])
+    return {"text": act.text(), "describe": act.describe(), "note": note, **act.to_dict()}
+
+
 def _model_config(network: Network, m: int) -> ModelConfig:
     sizes = ({"hidden": tuple(network.hidden)} if network.kind == "blackbox" else
              {"mass": tuple(network.mass), "potential": tuple(network.potential),
@@ -96,8 +108,8 @@ def _model_config(network: Network, m: int) -> ModelConfig:
     return ModelConfig(kind=network.kind, n=2, m=m, dtype="float64", **sizes)
 
 
-def stage_train(plan: CosseratPlan, network: Network, imported: dict, folder: Path,
-                progress) -> dict[str, Any]:
+def stage_train(plan: CosseratPlan, network: Network, imported: dict, actuator: dict,
+                folder: Path, progress) -> dict[str, Any]:
     """One network on the training trajectories' bending coordinates, its best epoch chosen on
     the validation trajectories (never on the test ones, which :func:`stage_predict` scores).
     A run whose loss left the finite numbers is reported, not fatal (its last good model is
@@ -110,6 +122,7 @@ def stage_train(plan: CosseratPlan, network: Network, imported: dict, folder: Pa
         test_trajectories=tuple(int(i) for i in imported["validation"]),
         validation=0,  # the held-out trajectories of this file are the validation ones already
         input_hold=plan.input_hold, loss=plan.loss, momenta=network.momenta,
+        actuator=actuator["text"],
         eval_every=max(1, epochs // 25), checkpoint_every=max(1, epochs // 5),
     )
     run_dir = folder / "run"
@@ -168,11 +181,12 @@ def stage_predict(plan: CosseratPlan, imported: dict, trained: dict,
     return out
 
 
-def stage_baselines(plan: CosseratPlan, imported: dict) -> dict[str, Any]:
+def stage_baselines(plan: CosseratPlan, imported: dict, actuator: dict) -> dict[str, Any]:
     """No motion, ARX (order 2) and the linear second-order model, fitted on the training and
-    validation trajectories (all the networks saw) and scored like :func:`stage_predict`
-    (:func:`bridge.analysis.baselines.compare_baselines`)."""
+    validation trajectories (all the networks saw) under the networks' actuator and scored like
+    :func:`stage_predict` (:func:`bridge.analysis.baselines.compare_baselines`)."""
     data = load_dataset(imported["path"])
+    data = with_actuator(data, run_actuator(actuator["text"], data.m))
     comparison = compare_baselines(data, imported["fitted"], imported["test"],
                                    horizons(plan, imported), input_hold=plan.input_hold)
     return comparison.to_json()

@@ -10,7 +10,10 @@ The output directory holds
   compiled through the project's code cache (:func:`softpinn.symbolic.compile_functions`; absent
   without a C compiler);
 * ``model.json``: kind, sizes, state and coordinate names, units, the training data and
-  configuration, the integrator of ``step``, a checksum of the run's files, the versions.
+  configuration, the integrator of ``step``, the run's actuator (``actuator``: numbers, text
+  and what to feed the model), a checksum of the run's files, the versions;
+* for a run with an actuator (issue 43 item 2) also ``actuator.casadi`` and
+  ``actuator_step.casadi`` (:mod:`.actuator`): the model's ``u`` is the actuator's output.
 """
 
 from __future__ import annotations
@@ -27,10 +30,11 @@ import numpy as np
 
 from softpinn._version import __version__
 from softpinn.bridge.base import outputs
+from softpinn.bridge.export.actuator import actuator_functions, actuator_metadata
 from softpinn.bridge.export.dynamics import export_functions
 from softpinn.bridge.export.params import model_params
 from softpinn.errors import UserError
-from softpinn.learn import load_run
+from softpinn.learn import load_run, run_actuator
 from softpinn.symbolic import compile_functions
 
 __all__ = ["export_run", "ExportResult", "FORMAT", "FORMAT_VERSION", "load_exported"]
@@ -211,6 +215,8 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     params = [model_params(r.model) for r in loaded]
     log(f"building the CasADi Functions of {len(loaded)} model(s)")
     fns = export_functions(params, substeps=train_cfg.substeps, input_hold=train_cfg.input_hold)
+    act = run_actuator(getattr(train_cfg, "actuator", "auto"), params[0]["m"])
+    fns.update(actuator_functions(act, params[0]["m"]))
     _prepare_out(out, force)
     log(f"writing the Functions and model.c to {out}")
     fns["qdd"].save(str(out / "model.casadi"))
@@ -240,6 +246,7 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
         },
         "step": {"method": "rk4", "substeps": train_cfg.substeps,
                  "input_hold": train_cfg.input_hold},
+        "actuator": actuator_metadata(act, m),
         "run": {
             "path": str(run.absolute()),
             "members": [str(r.run_dir.absolute()) for r in loaded],
@@ -265,6 +272,8 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     tmp = out / ".model.json.tmp"
     tmp.write_text(json.dumps(result, indent=1))
     os.replace(tmp, out / "model.json")
+    if not act.is_identity:
+        log(f"actuator: {result['actuator']['note']}")
     result.functions = fns
     return result
 

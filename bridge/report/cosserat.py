@@ -85,6 +85,10 @@ def _training_lines(variant: str, v: Mapping[str, Any]) -> list[str]:
     lines = [f"- **{variant}**: smoother `{imp['smooth']}`; trajectories: train "
              f"{imp['train']}, validation {imp['validation']} (best epoch), test {imp['test']}; "
              f"bending rms {imp['q_rms']:.3g} rad"]
+    act = v.get("actuator")
+    if act:
+        lines.append(f"  - actuator (every network and baseline): "
+                     f"{act.get('note') or act['describe']}")
     for kind, label in NETWORKS:
         n = v["networks"][kind]
         t = n["train"]
@@ -121,6 +125,8 @@ def _settings_lines(run: CosseratRun) -> list[str]:
         f"`{p.variants['clean']['smooth']}`, noisy: `{p.variants['noisy']['smooth']}`); the "
         "networks train on the bending (dx, dy) only: a tip orientation does not see the "
         "stretch",
+        f"- actuator: `--actuator {p.actuator}` (the stand-in's own lag and dead time are in "
+        "`<variant>/record/cosserat.json`; the study does not give them to the models)",
         f"- training: loss `{p.loss}`, input hold `{p.input_hold}`, batch {p.batch_size}, "
         f"{'all pairs' if p.samples is None else f'{p.samples} pairs'}, float64, seed "
         f"{p.train_seed}",

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from softpinn.actuator import Actuator
 from softpinn.bridge.figures.experiment import (
     KINDS,
     PREP_TITLE,
@@ -36,6 +37,18 @@ from softpinn.files import atomic_write
 from softpinn.learn import load_dataset
 
 WHO = {"lagrangian": "Lagrangian network", "blackbox": "black box"}
+
+
+def actuator_line(plan, m: int) -> list[str]:
+    """The run's actuator in one paragraph (``--actuator``; none without one)."""
+    table = plan.actuator
+    if not table:
+        return []
+    act = Actuator.from_dict(table, m, source="known to the models")
+    return [f"**Actuator: {act.describe()}** (`--actuator {act.text()}`). The tendons follow "
+            "their commands through this lag and dead time; the commands are what the "
+            "recordings hold as u, and the networks (`softpinn train --actuator`) and the "
+            "baselines are given the actuator's output as their input.", ""]
 
 
 def _rel(path, out: Path) -> str:
@@ -255,6 +268,7 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
         "",
     ]
     lines += verdict(plan, results)
+    lines += actuator_line(plan, spec.m)
     lines += [
         "**These data are simulated.** The paper's recordings of its tendon-driven arm are not "
         "public, so this run builds the closest honest stand-in and says where it differs: a "
@@ -275,7 +289,8 @@ def write_experiment_report(spec, plan, results: Mapping[str, Any], out: Path, *
         "arm (as only a simulation can). What the stand-in leaves out: the real arm's "
         "unmodelled effects (friction, hysteresis, tendon slack, a base that moves), IMU "
         "errors beyond white noise and a random-walk bias, and the paper's motors' own "
-        "dynamics (the tensions here are the commands).",
+        + ("dynamics (here the known lag and dead time above)." if plan.actuator
+           else "dynamics (the tensions here are the commands)."),
         "",
         f"Units: the preset's tendon radius d = {seg.actuator_radius:g} m makes dx, dy the "
         f"components of the bending angle in rad, so prediction errors (the mean over the "

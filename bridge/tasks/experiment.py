@@ -28,6 +28,12 @@ stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the pa
    preprocessing table, the matrices, and the figures (:mod:`bridge.report.experiment`, written
    by ``softpinn.bridge.app``'s ``reproduce`` after :func:`run_experiment` ran steps 1-6).
 
+With ``--actuator TAU:DELAY`` (``ReproduceConfig.actuator``, issue 43) the tendons follow their
+commands through a first-order lag and a dead time (:mod:`softpinn.actuator`): the spec gets the
+``[actuator]`` table, so the arm is simulated behind it with the commands recorded as u, the
+import writes ``meta["actuator"]``, and the networks (``TrainConfig.actuator``) and the baselines
+are given the same actuator (known, not learned). Without it nothing differs from before.
+
 Every step is a stage (:class:`.stages.Stages`): rerun with the same settings, finished stages are
 skipped. ``quick`` shrinks the data, the rates, the networks and the budgets to run in a minute or
 two.
@@ -43,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from softpinn.actuator import Actuator
 from softpinn.bridge.base import outputs
 from softpinn.bridge.tasks import parallel
 from softpinn.bridge.tasks.experiment_stages import (
@@ -132,9 +139,46 @@ class ExperimentPlan:
     analysis_points: int
     seeds: int
     float32: bool
+    #: the lag and dead time between the commands and the arm (``--actuator`` or the spec's
+    #: ``[actuator]`` table): ``time_constant`` and ``delay`` [s], one value or one per input;
+    #: None: the commands reach the arm at once (as before the option existed)
+    actuator: Mapping[str, list[float]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self)))
+        d = json.loads(json.dumps(dataclasses.asdict(self)))
+        if self.actuator is None:
+            d.pop("actuator")  # plan.json as before the option existed
+        return d
+
+    def actuator_dynamics(self, m: int) -> Actuator:
+        """The actuator the arm, the networks and the baselines share (identity without one)."""
+        return Actuator.from_dict(self.actuator, m) if self.actuator else Actuator()
+
+
+def plan_actuator(spec, config: ReproduceConfig) -> dict[str, list[float]] | None:
+    """The run's actuator as a spec's ``[actuator]`` table: ``--actuator``, else the spec's own
+    table; None where neither gives one (or it is the identity)."""
+    if config.actuator is not None:
+        try:
+            act = Actuator.parse(config.actuator, spec.m)
+        except UserError as e:  # (one per input: the spec's count of inputs)
+            raise UserError(f"--actuator: {str(e).removeprefix('actuator: ')}") from None
+    elif spec.actuator:
+        act = Actuator.from_dict(spec.actuator, spec.m)
+    else:
+        return None
+    if act.is_identity:
+        return None
+    return {"time_constant": list(act.time_constant), "delay": list(act.delay)}
+
+
+def experiment_spec(spec, plan: ExperimentPlan):
+    """The spec the run simulates and imports with: the preset's, with the plan's actuator as
+    its ``[actuator]`` table (the arm integrated behind it, ``meta["actuator"]`` written)."""
+    table = dict(plan.actuator) if plan.actuator else {}
+    if dict(spec.actuator) == table:
+        return spec
+    return dataclasses.replace(spec, actuator=table)
 
 
 def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
@@ -197,7 +241,7 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
         samples=None if quick else cfg.physics_samples, batch_size=recipe.batch_size,
         input_hold=recipe.input_hold, horizon=float(recipe.prediction_horizon),
         reset_every=RESET_EVERY, analysis_points=config.analysis_points or (30 if quick else 200),
-        seeds=config.seeds, float32=config.float32,
+        seeds=config.seeds, float32=config.float32, actuator=plan_actuator(spec, config),
     )
 
 
@@ -226,11 +270,18 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
     t_start = time.perf_counter()
     spec = load_spec(config.task)
     plan = make_experiment_plan(spec, config)
+    spec = experiment_spec(spec, plan)
     write_json(out / "plan.json", plan.to_dict())
     stages = Stages(out, log)
-    sim = stages.run("data", {"data": plan.data, "rate": plan.sim_rate},
+    if plan.actuator:
+        log(f"actuator: {plan.actuator_dynamics(spec.m).describe()}, known to the models")
+    sim = stages.run("data", _with_actuator(plan, {"data": plan.data, "rate": plan.sim_rate}),
                      lambda d: stage_simulate(spec, plan, d))
     results: dict[str, Any] = {"data": sim, "rates": {}}
+    if plan.actuator:  # (none: results.json as before the option existed)
+        act = plan.actuator_dynamics(spec.m)
+        results["actuator"] = {"text": act.text(), "describe": act.describe(),
+                               **spec.actuator_meta()}
     imports = {}  # (rate, preprocessing) -> the import stage's result and settings
     for rate in plan.rates:
         rn = rate_name(rate)
@@ -275,8 +326,14 @@ def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], Non
     return ExperimentRun(config, spec, plan, out, results, seconds)
 
 
+def _with_actuator(plan: ExperimentPlan, settings: dict) -> dict:
+    """A stage's settings with the run's actuator (none: as before the option existed), so that
+    a run with another actuator redoes the stage; the later stages' settings hold the import's."""
+    return {**settings, "actuator": dict(plan.actuator)} if plan.actuator else settings
+
+
 def _record_settings(plan: ExperimentPlan, rate: float) -> dict:
-    return {"data": plan.data, "sensor": plan.sensor, "rate": rate}
+    return _with_actuator(plan, {"data": plan.data, "sensor": plan.sensor, "rate": rate})
 
 
 def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str, prep: str) -> dict:
@@ -284,7 +341,7 @@ def _import_settings(plan: ExperimentPlan, rec: dict, smooth: str, prep: str) ->
            "test": plan.test_trajectories}
     if plan.differences[prep] != 2:  # (the settings of second order as before it was a choice)
         out["differences"] = plan.differences[prep]
-    return out
+    return _with_actuator(plan, out)
 
 
 def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: str, kind: str,
@@ -316,6 +373,7 @@ def _model_worker(config: ReproduceConfig, out: str, rate: float, prep: str,
 
     spec = load_spec(config.task)
     plan = make_experiment_plan(spec, config)
+    spec = experiment_spec(spec, plan)
     rn = rate_name(rate)
     probe = parallel.Probe(Path(out), lambda _: None)
     rec = probe.run(f"record/{rn}", _record_settings(plan, rate), None)

@@ -1,7 +1,9 @@
 """The stages of ``softpinn reproduce experiment`` (:mod:`.experiment`): simulate, record with the
 spec's sensor, import with one preprocessing, train, predict, score the baselines at the same
 horizons, compare the bending matrices. Each takes the run's :class:`.experiment.ExperimentPlan`
-and writes into its own folder."""
+and writes into its own folder. With the plan's actuator (``--actuator``) the networks train and
+predict on its output (``TrainConfig.actuator``, the run applies it) and the baselines are fitted
+and scored on the same inputs (:func:`softpinn.learn.with_actuator`)."""
 
 from __future__ import annotations
 
@@ -27,8 +29,10 @@ from softpinn.learn import (
     load_ensemble,
     make_pairs,
     one_step_errors,
+    run_actuator,
     train,
     trajectories,
+    with_actuator,
 )
 from softpinn.symbolic import (
     SensorConfig,
@@ -73,7 +77,7 @@ def stage_record(spec, plan, rate: float, simulated: dict, folder: Path) -> dict
         f"unpublished recordings): {sensor.rate_hz:g} Hz, white noise {list(sensor.noise_std)} "
         f"rad, bias random walk {list(sensor.bias_walk_std)} rad/sqrt(s), seed {sensor.seed}. "
         "Import: softpinn import imu.csv --model experiment --orientation "
-        f"{'rpy' if sensor.output == 'rpy' else 'quaternion'}"))
+        f"{'rpy' if sensor.output == 'rpy' else 'quaternion'}" + _actuator_comment(plan, spec.m)))
     truth = folder / "truth.npz"
     np.savez(truth, t=rec.t, traj=rec.traj, q=rec.q_true, qd=rec.qd_true,
              angles_true=rec.angles_true, angles=rec.angles, bias=rec.bias)
@@ -83,6 +87,15 @@ def stage_record(spec, plan, rate: float, simulated: dict, folder: Path) -> dict
             "noise_rms": np.sqrt(np.mean(noise**2, axis=0)).tolist(),
             "bias_rms": np.sqrt(np.mean(rec.bias**2, axis=0)).tolist(),
             "bias_max": np.max(np.abs(rec.bias), axis=0).tolist()}
+
+
+def _actuator_comment(plan, m: int) -> str:
+    """The recording's note on the actuator (none: nothing, as before the option existed)."""
+    if not plan.actuator:
+        return ""
+    act = plan.actuator_dynamics(m)
+    return (f". u holds the commands; they reach the arm through a {act.describe()} "
+            f"(train with --actuator {act.text()})")
 
 
 def bending_only(data, spec):
@@ -146,6 +159,8 @@ def stage_train(spec, plan, kind: str, rate: float, imported: dict,
         test_trajectories=tuple(imported["test"]), samples=plan.samples,
         validation=0,  # the paper task as published: its test loss picks (docs/rundir.md)
         substeps=int(plan.substeps[rate_name(rate)]), input_hold=plan.input_hold,
+        # the plan's actuator, known (none: the commands reach the arm at once, as before)
+        actuator=plan.actuator_dynamics(spec.m).text(),
         eval_every=max(1, epochs // 25), checkpoint_every=max(1, epochs // 5),
     )
     run_dir = folder / "run"
@@ -206,7 +221,11 @@ def stage_predict(plan, kind: str, rate: float, imported: dict, recorded: dict,
     kw = dict(substeps=int(plan.substeps[rate_name(rate)]), input_hold=plan.input_hold)
     members = []
     arrays: dict[str, np.ndarray] = {}
+    recorded_data = data
     for j, run in enumerate(load_ensemble(trained["run"])):
+        # the network's u is its actuator's output (the run's, as it trained)
+        data = with_actuator(recorded_data,
+                             run_actuator(run.train_config.actuator, recorded_data.m))
         short = evaluate(run.model, data, test, horizon=horizon, **kw)
         reset = evaluate(run.model, data, test, horizon=span, reset_every=plan.reset_every, **kw)
         cfg = run.model_config
@@ -269,8 +288,10 @@ def stage_baselines(plan, imported: dict) -> dict:
     the training trajectories and scored on the test ones against the processed measurement,
     as :func:`stage_predict` scores the networks: over the horizon without reset (``short``)
     and over the whole test trajectories with the state reset every ``reset_every`` seconds
-    (``reset``). Closed form: well under a second."""
+    (``reset``), under the plan's actuator as the networks are. Closed form: well under a
+    second."""
     data = load_dataset(imported["path"])
+    data = with_actuator(data, plan.actuator_dynamics(data.m))  # the networks' inputs
     train_ids, test = list(imported["train"]), [int(i) for i in imported["test"]]
     span = min(float(tr["t"][-1] - tr["t"][0]) for tr in trajectories(data, test))
     horizon = min(plan.horizon, span)

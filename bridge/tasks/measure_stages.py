@@ -27,8 +27,11 @@ from softpinn.learn import (
     load_ensemble,
     make_pairs,
     one_step_errors,
+    resolve_actuator,
     rollouts,
+    run_actuator,
     trajectories,
+    with_actuator,
 )
 from softpinn.symbolic import TrueModel
 
@@ -39,8 +42,9 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     """Train and test one-step errors, rollouts over the horizon and a long horizon (one
     rollout: the first part is the horizon's), and rollouts with another step size."""
     f = files["blackbox" if kind == "blackbox" else "physics"]
-    data = load_dataset(f["path"])
+    recorded = load_dataset(f["path"])
     test = f["test"]
+    data = recorded
     # a variant's data may be shorter than the plan's horizons (task5's fixed-step data): predict
     # over what the data holds and report that horizon, never more
     horizon, long_horizon = predict_horizons(plan, data, test)
@@ -48,6 +52,8 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
     for run in load_ensemble(trained["run"]):
         tc, cfg = run.train_config, run.model_config
         kw = dict(substeps=tc.substeps, input_hold=tc.input_hold)
+        # the network's u is its actuator's output (a spec's [actuator] table; none otherwise)
+        data = with_actuator(recorded, run_actuator(tc.actuator, recorded.m))
         long = evaluate(run.model, data, test, horizon=long_horizon,
                         loss_weight=REPORT_WEIGHT, **kw)
         main = [_truncated_error(r, horizon) for r in long.rollouts]
@@ -123,6 +129,8 @@ def stage_baselines(plan: Plan, files: dict) -> dict:
     data = load_dataset(f["path"])
     horizons = sorted(set(predict_horizons(plan, data, f["test"])))
     hold = _input_hold(plan)
+    # the networks' inputs: a spec's actuator (the file's meta), as their training resolved it
+    data = with_actuator(data, resolve_actuator("auto", data, f["train"])[0])
     comparison = compare_baselines(data, f["train"], f["test"], horizons, input_hold=hold)
     return {**comparison.to_json(), "horizons": horizons, "input_hold": hold}
 

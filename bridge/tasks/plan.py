@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from softpinn.actuator import Actuator
 from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.errors import UserError
 from softpinn.symbolic import LOSS_KEYS, MODEL_KEYS, data_config, load_spec, physics_data_table
@@ -88,6 +89,9 @@ class ReproduceConfig:
     float32: bool = False
     analysis_points: int | None = None  # sampled q for the analysis (default 200, quick 40)
     jobs: int = 1  # models trained and analysed side by side, each in a process of its own
+    #: the experiment's actuator, TAU:DELAY in s (``--actuator``, softpinn/actuator.py): the
+    #: stand-in's tendons follow their commands through this lag and dead time
+    actuator: str | None = None
 
     def __post_init__(self):
         studies = TASKS + EXPERIMENTS + CHALLENGES + COSSERAT
@@ -114,6 +118,16 @@ class ReproduceConfig:
             raise UserError(f"--epochs must be an integer >= 1, got {self.epochs!r}")
         if self.lbfgs_steps is not None and self.lbfgs_steps < 0:
             raise UserError(f"--lbfgs-steps must be >= 0, got {self.lbfgs_steps!r}")
+        if self.actuator is not None:
+            if self.task not in EXPERIMENTS:
+                raise UserError(f"--actuator: only the experiment's stand-in takes it (`softpinn "
+                                f"reproduce experiment --actuator TAU:DELAY`), not {self.task}; "
+                                "leave it out")
+            try:
+                Actuator.parse(self.actuator)
+            except UserError as e:  # the same rules as train --actuator, naming this flag
+                msg = str(e).removeprefix("actuator: ")
+                raise UserError(f"--actuator: {msg}") from None
 
 
 # ------------------------------------------------------------------------------------ plan

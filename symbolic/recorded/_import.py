@@ -4,7 +4,9 @@
 the bending configuration of a one-segment spatial PCC arm (:mod:`symbolic.spec._orientation`),
 smooths and differentiates (:mod:`symbolic.recorded._filters`), optionally resamples to a uniform
 rate, computes the momentum p = M(q) q̇ with the model's mass matrix, and returns
-:class:`~symbolic.simulation._datafile.DatasetArrays` whose ``meta`` records every choice.
+:class:`~symbolic.simulation._datafile.DatasetArrays` whose ``meta`` records every choice (and,
+where the spec has an ``[actuator]`` table, ``meta["actuator"]``: the lag and delay per input
+between the recorded commands u and the arm, which ``softpinn train`` applies).
 
 Order of the steps, per trajectory: orientation -> q (phi unwrapped along time for
 ``phi-theta``); smooth q (and q̇ when recorded) on the recorded times; velocities and
@@ -122,6 +124,7 @@ def import_recordings(
     rate: float | None = None,
     test_trajectories: int = 0,
     differences: int | None = None,
+    observed_only: bool = False,
 ) -> ImportResult:
     """Turn recordings into a dataset for ``model`` (a preset name, spec path or ModelSpec).
 
@@ -130,7 +133,9 @@ def import_recordings(
     trajectory to this uniform rate [Hz]; ``test_trajectories``: the last K trajectories form
     the test split (``meta['splits']``); ``differences``: the order (2 or 4) of the central
     differences where the smoother has no derivative of its own (none, movmean); None keeps a
-    given Smoother's, 2 for a text.
+    given Smoother's, 2 for a text. ``observed_only``: leave out the coordinates the
+    recordings cannot determine (a tip orientation's stretch, otherwise set to 0), so that a
+    network learns only what was measured (issue 43: the networks moved an unmeasured stretch).
     """
     spec = load_spec(model)
     sm = filters.parse_smoother(smooth, differences)
@@ -252,7 +257,26 @@ def import_recordings(
         "package_version": _version("softpinn"),
         "numpy_version": np.__version__,
     }
+    if spec.actuator:
+        meta["actuator"] = spec.actuator_meta()
+    if observed_only and unobserved:
+        arrays, meta = _observed(spec, arrays, meta, unobserved)
+        notes.append(f"--observed-only: the dataset holds {', '.join(meta['coordinates'])} "
+                     f"only ({', '.join(unobserved)} left out)")
     return ImportResult(DatasetArrays(meta=meta, **arrays), notes)
+
+
+def _observed(spec: ModelSpec, arrays: dict, meta: dict, unobserved: list[str]):
+    """``arrays`` and ``meta`` without the ``unobserved`` coordinates. p keeps its observed
+    rows: with the unobserved velocities 0 they are M_oo q̇_o (the observed block of eq. 7's
+    p = M q̇)."""
+    keep = [i for i, name in enumerate(spec.coordinate_names) if name not in unobserved]
+    out = {k: (v[:, keep].copy() if k in ("q", "qd", "qdd", "p") else v)
+           for k, v in arrays.items()}
+    names = [spec.coordinate_names[i] for i in keep]
+    meta = {**meta, "n": len(keep), "coordinates": names,
+            "import": {**meta["import"], "dropped": list(unobserved)}}
+    return out, meta
 
 
 def momentum(spec: ModelSpec, q: np.ndarray, qd: np.ndarray) -> np.ndarray:

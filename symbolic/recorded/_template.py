@@ -178,6 +178,18 @@ def data_comment(spec: ModelSpec) -> str:
         lines.append(f"# {key} = {text}")
     lines += [
         "",
+        "# [actuator]: the lag and dead time between the u you record and the arm [s], one",
+        "# number for every input or a list with one per input. Give it when u holds COMMANDS",
+        "# (valve or pressure-regulator set points, motor set points): a pneumatic chamber fills",
+        "# with a lag of 0.1-1 s after a transport delay of 0.1-0.5 s. Leave it out when u holds",
+        "# MEASURED actuator signals (chamber pressures, tendon tensions): their lag is in them.",
+        "# `softpinn simulate` simulates the arm behind it, `softpinn import` records it and",
+        "# `softpinn train` applies it; without the table, `train --actuator auto` identifies one",
+        "# from imported recordings (docs/import.md, \"Actuator dynamics\").",
+        "# [actuator]",
+        "# time_constant = 0.2",
+        "# delay = 0.1",
+        "",
         "# [training]: a task recipe for `softpinn reproduce` (network sizes, epochs, losses):",
         "# see docs/recipes.md and the presets in symbolic/presets/.",
     ]

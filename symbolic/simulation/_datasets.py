@@ -15,7 +15,8 @@ File contents (``docs/dataset.md``): flat arrays over all samples of all traject
 spec, ``ModelSpec.to_dict()``), ``n``, ``m``, ``coordinates``, ``simulation`` (integrator,
 tolerances or step, output rate), ``trajectories``, ``initial_states``, ``signals`` (one per
 trajectory, :meth:`Signal.to_dict`), ``seed`` and ``seeding``, ``noise``, ``splits`` (the paper's
-train/test/black-box trajectory indices), ``package_version``, ``casadi_version``, ``timings_s``.
+train/test/black-box trajectory indices), ``package_version``, ``casadi_version``, ``timings_s``,
+and ``actuator`` (per input, from a spec's ``[actuator]``: u holds the commands).
 
 Seeding: trajectory k draws its initial state and then its signal from
 ``numpy.random.default_rng([seed, k])``, so trajectory k is the same whatever the count.
@@ -348,9 +349,13 @@ def make_dataset(
     integ = sim.integrator
     timings: dict[str, float] = {}
     is_compiled = from_cache = None  # unknown when the caller passes the functions
+    actuator = spec.actuator_dynamics
     if simulator is not None:
         if fns is not None:
             raise TypeError("make_dataset: give fns or a simulator, not both")
+        if actuator and not actuator.is_identity and not getattr(simulator, "actuated", 0):
+            raise DataError(f"{spec.source}: [actuator]: this integrator does not model the "
+                            "actuator's lag and delay; use --integrator rk4 or cvodes")
     elif fns is None:
         t0 = time.perf_counter()
         fns = functions(spec)
@@ -373,7 +378,7 @@ def make_dataset(
     # -288 1/s) would otherwise hold nearly all of the one-step loss in a few samples
     run = replace(sim, duration=sim.duration + plan.settle) if plan.settle else sim
     if simulator is None:
-        res = simulate(fns, x0, sigs, run, progress=progress)
+        res = simulate(fns, x0, sigs, run, progress=progress, actuator=actuator)
     else:
         res = simulator(x0, sigs, run, progress=progress)
     timings["simulate"] = time.perf_counter() - t0
@@ -432,7 +437,7 @@ def make_dataset(
         "numpy_version": np.__version__,
         "timings_s": timings,
     }
-    meta.update(simulator_meta or {})
+    meta.update({"actuator": spec.actuator_meta()} if actuator else {}, **(simulator_meta or {}))
     return DatasetArrays(meta=meta, **arrays)
 
 

@@ -43,7 +43,7 @@ def _chunk(spec, x0, signals, config, compile, cache):
     fns = functions(spec)
     if compile:
         fns = compile_functions(fns, directory=cache).functions
-    return simulate(fns, x0, signals, config)
+    return simulate(fns, x0, signals, config, actuator=spec.actuator_dynamics)
 
 
 def ray_simulator(spec, *, address: str | None = None, chunks: int | None = None,
@@ -104,4 +104,5 @@ def ray_simulator(spec, *, address: str | None = None, chunks: int | None = None
         return SimResult(t=results[0].t, x=cat("x"), u=cat("u"), qdd=cat("qdd"), p=cat("p"),
                          config=config, info=info)
 
+    run.actuated = True  # each task simulates the spec's [actuator] (make_dataset checks)
     return run

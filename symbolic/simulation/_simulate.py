@@ -27,6 +27,11 @@ theta = 0, Fig. 12 of the paper) is never returned with NaN: a non-finite state,
 matrix with condition number above ``max_condition`` or a failure of cvodes raises
 :class:`SingularityError` naming the trajectory, the time and the state.
 
+With an ``actuator`` (a spec's ``[actuator]`` table) the arm feels the commands through a dead
+time and a first-order lag per input, integrated exactly with one extra state per lagged input
+(:mod:`symbolic.simulation._actuated`); what comes back is the arm's alone (x, q̈, p under what
+the actuator delivered) with u the commands.
+
 The output grid is t_k = k / rate, k = 0 .. round(duration * rate) - 1 (so 10 s at 50 Hz are
 500 samples, as counted in Table III). How to integrate, what comes back and the errors are
 :mod:`symbolic.simulation._sim_config`'s.
@@ -44,7 +49,9 @@ from collections.abc import Mapping, Sequence
 import casadi as ca
 import numpy as np
 
+from softpinn.actuator import Actuator
 from softpinn.progress import Progress, ProgressFn
+from softpinn.symbolic.simulation._actuated import Actuated
 from softpinn.symbolic.simulation._samples import (
     batched,
     condition_numbers,
@@ -142,12 +149,14 @@ def simulate(
     config: SimulationConfig,
     *,
     progress: ProgressFn | None = None,
+    actuator: Actuator | None = None,
 ) -> SimResult:
     """Integrate K trajectories from the initial states ``x0`` (K, 2n) under ``signals`` (K).
 
     ``fns`` holds the model's functions (keys ``"ode"``, ``"forward"``, ``"momentum"``,
     ``"M"``; see :func:`symbolic.model._functions.functions`), compiled or not. ``progress`` is
     told the trajectories finished after every chunk (a :class:`softpinn.progress.Progress`).
+    ``actuator``: the commands ``signals`` reach the arm through it (the module's doc).
     """
     x0 = np.atleast_2d(np.asarray(x0, dtype=float))
     ode = fns["ode"]
@@ -171,6 +180,9 @@ def simulate(
     t = config.times()
     nt = len(t)
     xs = np.empty((k_all, nt, nx))
+    commands, act = signals, Actuated.of(actuator, m)
+    if act is not None:  # integrate [q; q̇; lag states] under the delayed commands
+        x0, signals, ode = act.initial(x0, commands), act.signals(commands), act.ode(ode)
     u = np.empty((k_all, nt, m))
     qdd = np.empty((k_all, nt, n))
     mom = np.empty((k_all, nt, n))
@@ -188,12 +200,13 @@ def simulate(
         proto = signals[idx[0]]
         rk = None
         if config.integrator == "cvodes":
-            f = cvodes_integrator(ode, proto, nx, t, config)
+            f = cvodes_integrator(ode, proto, ode.size1_in(0), t, config)
         else:
             start = time.perf_counter()
             rk = kernel_rk4(ode, proto, post_fn)
             kernel_s += time.perf_counter() - start
-            f = rk4_integrator(ode, proto, nx, config) if rk is None else None
+            f = (rk4_integrator(ode, proto, ode.size1_in(0), config) if rk is None
+                 else None)
         if rk is not None:
             post_kernel = rk.kernels["post"]
         elif post_fn is not None and post_kernel is None:
@@ -221,21 +234,25 @@ def simulate(
                         out = fm(x0=x0[ids].T, p=p)["xf"]
                 except RuntimeError as exc:
                     for i in ids:
-                        _locate_failure(ode, signals[i], nx, x0[i], t, config, i)
+                        _locate_failure(ode, signals[i], ode.size1_in(0), x0[i], t, config, i,
+                                        n=n)
                     raise SingularityError(
                         f"trajectories {ids}: the integrator failed: "
                         f"{' '.join(str(exc).split())}"
                     ) from None
             if out is not None:
-                arr = np.asarray(out).reshape(nx, len(ids), nt).transpose(1, 2, 0)
-            xs[ids] = arr
+                arr = np.asarray(out).reshape(-1, len(ids), nt).transpose(1, 2, 0)
+            xs[ids] = arr[:, :, :nx]
             for j, i in enumerate(ids):
                 _check_finite(arr[j], t, i, n, integrator=config.integrator, dt=config.step)
             integrate_s += time.perf_counter() - start
             # accelerations, momenta and conditioning of this chunk (bounded memory)
             start = time.perf_counter()
             uu = np.stack([signals[i](t) for i in ids])
-            u[ids] = uu
+            u[ids] = uu if act is None else np.stack([commands[i](t) for i in ids])
+            if act is not None:  # what the arm felt
+                uu = act.outputs(arr, uu, nx)
+                arr = arr[:, :, :nx]
             flat_u = uu.reshape(len(ids) * nt, m)
             if post_kernel is not None:
                 a, pm, mm = kernel_postprocess(post_kernel, arr.reshape(-1, nx), flat_u, n,
@@ -279,7 +296,7 @@ def simulate(
 
 def _fmt(x: np.ndarray, n: int) -> str:
     q = ", ".join(f"{v:.6g}" for v in x[:n])
-    qd = ", ".join(f"{v:.6g}" for v in x[n:])
+    qd = ", ".join(f"{v:.6g}" for v in x[n:2 * n])
     return f"q = [{q}], qd = [{qd}]"
 
 
@@ -332,12 +349,12 @@ def _quiet_stderr():
             lines.extend(line.strip() for line in text.splitlines() if line.strip())
 
 
-def _locate_failure(ode, signal, nx, x0, t, config, k):
+def _locate_failure(ode, signal, nx, x0, t, config, k, n=None):
     """Integrate one output interval at a time to name where cvodes failed.
 
     Raises :class:`SingularityError` for a trajectory that fails; returns for one that does not.
     """
-    n = nx // 2
+    n = nx // 2 if n is None else n  # n: the arm's coordinates (nx may hold lag states too)
     dt = t[1] - t[0]
     f = cvodes_integrator(ode, signal, nx, np.array([0.0, dt]), config, name="locate")
     x = np.asarray(x0, dtype=float)

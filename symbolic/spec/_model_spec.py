@@ -10,6 +10,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from softpinn.actuator import Actuator
 from softpinn.errors import UserError
 from softpinn.symbolic.spec._recipe import Recipe, parse_recipe
 
@@ -72,6 +73,7 @@ class ModelSpec:
     data: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
     training: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
     sensor: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
+    actuator: Mapping[str, Any] = field(default_factory=dict, compare=False, hash=False)
 
     @property
     def n(self) -> int:
@@ -116,11 +118,26 @@ class ModelSpec:
         the spec was loaded)."""
         return parse_recipe(self.training, self.n)
 
+    @property
+    def actuator_dynamics(self) -> Actuator | None:
+        """The ``[actuator]`` table (a lag and a dead time per input between the commands u
+        and the arm) as an :class:`softpinn.actuator.Actuator`; None without one."""
+        return Actuator.from_dict(self.actuator, self.m) if self.actuator else None
+
+    def actuator_meta(self) -> dict[str, list[float]] | None:
+        """A dataset's ``meta["actuator"]``: ``time_constant`` and ``delay``, one per input
+        (None without an ``[actuator]`` table)."""
+        act = self.actuator_dynamics
+        if act is None:
+            return None
+        tau, delay = act.per_input(self.m)
+        return {"time_constant": tau.tolist(), "delay": delay.tolist()}
+
     def physics_dict(self) -> dict[str, Any]:
         """The physical part of the spec as plain JSON-able data (what the EOM depend on)."""
         out: dict[str, Any] = {"name": self.name, "kind": self.kind}
         for f in dataclasses.fields(self):
-            if f.name in ("name", "kind", "source", "data", "training", "sensor",
+            if f.name in ("name", "kind", "source", "data", "training", "sensor", "actuator",
                           "description"):
                 continue
             value = getattr(self, f.name)
@@ -143,6 +160,8 @@ class ModelSpec:
             out["training"] = _plain(self.training)
         if self.sensor:
             out["sensor"] = _plain(self.sensor)
+        if self.actuator:
+            out["actuator"] = _plain(self.actuator)
         return out
 
 

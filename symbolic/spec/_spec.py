@@ -11,7 +11,9 @@ A spec describes the physics of one of four kinds of system:
 It may also carry a ``[data]`` table (how to generate data for it; validated by
 :mod:`symbolic.simulation._datasets`), a ``[training]`` table (the task recipe, validated here
 when the spec loads: :mod:`symbolic.spec._recipe`) and a ``[sensor]`` table (a simulated sensor
-that records the arm, validated here: :mod:`symbolic.spec._sensor`).
+that records the arm, validated here: :mod:`symbolic.spec._sensor`) and an ``[actuator]`` table
+(the lag and dead time between the recorded commands u and the arm, per input:
+:class:`softpinn.actuator.Actuator`).
 
 ``load_spec`` accepts a preset name (``task1`` ... ``task5``) or a path to a ``.toml`` file, and
 refuses a bad spec with a :class:`SpecError` naming the file and the field. This module reads and
@@ -28,6 +30,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from softpinn.actuator import MAX_SECONDS, Actuator
 from softpinn.symbolic.spec._model_spec import (
     KINDS,
     MAX_COORDINATES,
@@ -129,13 +132,14 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
     data = v.table(raw, "data")
     training = v.table(raw, "training")
     sensor = v.table(raw, "sensor")
+    actuator = v.table(raw, "actuator")
     common = dict(
         name=name, kind=kind, source=source, description=description, data=data, training=training,
-        sensor=sensor,
+        sensor=sensor, actuator=actuator,
     )
 
     if kind == "spatial-pcc":
-        allowed = {"name", "kind", "description", "data", "training", "sensor",
+        allowed = {"name", "kind", "description", "data", "training", "sensor", "actuator",
                    "parameterization",
                    "gravity", "actuators_per_segment", "actuation", "segment"}
         v.no_unknown(raw, allowed, "")
@@ -147,7 +151,7 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                          segments=segments, actuation="generalized", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "tip-wrench", "tendon", "none"))
     elif kind == "planar-pcc":
-        allowed = {"name", "kind", "description", "data", "training", "sensor",
+        allowed = {"name", "kind", "description", "data", "training", "sensor", "actuator",
                    "gravity", "actuation",
                    "segment"}
         v.no_unknown(raw, allowed, "")
@@ -156,7 +160,7 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
         spec = ModelSpec(gravity=gravity, segments=segments, actuation="generalized", **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"))
     elif kind == "mass-spring-damper":
-        allowed = {"name", "kind", "description", "data", "training", "sensor",
+        allowed = {"name", "kind", "description", "data", "training", "sensor", "actuator",
                    "masses", "springs",
                    "dampers", "actuation"}
         v.no_unknown(raw, allowed, "")
@@ -168,7 +172,7 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                          **common)
         actuation = v.actuation(raw, spec.n, ("generalized", "none"), default="none")
     else:  # double-pendulum
-        allowed = {"name", "kind", "description", "data", "training", "sensor",
+        allowed = {"name", "kind", "description", "data", "training", "sensor", "actuator",
                    "masses", "lengths", "g",
                    "damping", "actuation"}
         v.no_unknown(raw, allowed, "")
@@ -189,6 +193,7 @@ def spec_from_dict(raw: Mapping[str, Any], *, source: str = "<dict>") -> ModelSp
                f"supported (at most {MAX_COORDINATES // per} here): deriving and compiling the "
                "equations grow about as n^2.5 in time and memory (8 spatial segments: 9 s and "
                "0.15 GB to derive, 31 s and 0.8 GB to compile; 40 ran for minutes past 3 GB)")
+    v.actuator(actuator, spec.m)
     try:
         parse_recipe(training, spec.n)
     except RecipeError as e:
@@ -304,6 +309,35 @@ class _Validator:
             out.append(Segment(length=length, mass=mass, radius=radius, actuator_radius=d,
                                stiffness=k, damping=c))
         return tuple(out)
+
+    def actuator(self, table: Mapping[str, Any], m: int) -> None:
+        """The ``[actuator]`` table: ``time_constant`` and ``delay`` [s], each one number for
+        every input or a list with one per input."""
+        if not table:
+            return
+        self.no_unknown(table, {"time_constant", "delay"}, "actuator.")
+        if m == 0:
+            self.fail("actuator", "the spec has no inputs (actuation = \"none\"); remove the "
+                      "table or give the arm inputs")
+        values = {}
+        for key in ("time_constant", "delay"):
+            if key not in table:
+                continue
+            where = f"actuator.{key}"
+            raw = table[key]
+            if isinstance(raw, Sequence) and not isinstance(raw, str):
+                vals = self.floats(table, key, None, where=where, nonnegative=True)
+                if len(vals) not in (1, m):
+                    self.fail(where, f"expected one value for every input or {m} (one per "
+                              f"input), got {len(vals)}")
+            else:
+                vals = (self.number(table, key, where=where, nonnegative=True),)
+            too_long = [x for x in vals if x > MAX_SECONDS]
+            if too_long:
+                self.fail(where, f"{too_long[0]:g} s is longer than {MAX_SECONDS:g} s: give "
+                          "seconds (not milliseconds)")
+            values[key] = list(vals)
+        Actuator.from_dict(values, m)  # the same rules: refuses nothing the checks above pass
 
     def actuation(self, raw, n, named, default="generalized"):
         value = raw.get("actuation", default)
