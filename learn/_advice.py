@@ -75,11 +75,12 @@ def scale_warnings(data: Dataset) -> list[str]:
     1 is left to the user's units; far off it, they say so here."""
     out = []
     for key, what, fix in (("u", "inputs u", "e.g. bar or kPa instead of Pa, N instead of mN"),
-                           ("q", "coordinates q", "e.g. degrees would not help: give the "
-                            "arm's coordinates in rad and m, or rescale the columns")):
-        rms = np.sqrt(np.mean(getattr(data, key) ** 2, axis=0))
+                           ("q", "coordinates q", "a coordinate that barely moves, such as a "
+                            "stiff stretch, is better left out, e.g. import --observed-only")):
+        with np.errstate(over="ignore"):  # values near 1e155 and more: the loss's message
+            rms = np.sqrt(np.mean(getattr(data, key) ** 2, axis=0))
         bad = [(j, float(r)) for j, r in enumerate(rms)
-               if r > 0 and max(r, 1 / r) >= SCALE_RATIO]
+               if np.isfinite(r) and r > 0 and max(r, 1 / r) >= SCALE_RATIO]
         if bad:
             j, r = bad[0]
             out.append(f"the data's {what} have rms {r:.3g} (column {j}"

@@ -58,10 +58,10 @@ def test_quick_run_writes_the_table_and_the_verdicts(quick_run):
     head, rows = _table(report)
     results = json.loads((quick_run / "results.json").read_text())
     long = results["plan"]["horizons"][-1]  # clipped to the quick recordings' 3 s
-    assert head == ["model", "clean 1 s", f"clean {long:g} s", f"noisy {long:g} s"]
+    assert head == ["model", "clean 1 s", f"clean {long:g} s", "noisy 1 s", f"noisy {long:g} s"]
     assert list(rows) == [label for label, _, _ in ROWS]
     for label, cells in rows.items():
-        assert len(cells) == 3
+        assert len(cells) == 4
         for cell in cells:
             if cell.startswith(("diverged", "no model")):
                 continue  # marked, never a silent number
@@ -75,6 +75,7 @@ def test_quick_run_writes_the_table_and_the_verdicts(quick_run):
             line = next(v for v in verdicts if v.startswith(f"- {variant}: {label}: "))
             assert " at 1 s " in line and (" beats " in line or " LOSES " in line)
     assert "seed 0" in report and "plan.json" in report
+    assert report.count("actuator (every network and baseline): ") == 2
 
 
 @pytest.mark.slow
@@ -89,6 +90,8 @@ def test_quick_run_results_are_strict_json_and_marked(quick_run):
         assert v["import"]["test"] == [2] and v["import"]["validation"] == [1]
         for kind in ("blackbox", "lagrangian", "hamiltonian"):
             assert v["networks"][kind]["train"]["config"]["model"]["n"] == 2  # bending only
+            # every network gets the variant's one actuator (identified once, given as numbers)
+            assert v["networks"][kind]["train"]["config"]["actuator"] == v["actuator"]["text"]
             for h in v["networks"][kind]["predict"]["horizons"].values():
                 assert (h["mean"] is None) == (h["diverged"] > 0)
     hamiltonian = results["results"]["clean"]["networks"]["hamiltonian"]["train"]["config"]

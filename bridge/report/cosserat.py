@@ -28,12 +28,9 @@ def _horizons(variant: Mapping[str, Any]) -> list[float]:
 
 
 def columns(results: Mapping[str, Any]) -> list[tuple[str, float]]:
-    """(variant, horizon) of each column: the clean variant at every horizon, the noisy one at
-    the longest."""
-    cols = [("clean", h) for h in _horizons(results["clean"])]
-    if "noisy" in results:
-        cols.append(("noisy", _horizons(results["noisy"])[-1]))
-    return cols
+    """(variant, horizon) of each column: every variant at every horizon (the verdicts speak
+    of each)."""
+    return [(v, h) for v in ("clean", "noisy") if v in results for h in _horizons(results[v])]
 
 
 def _marks(count: int, tested: int, diverged: int = 0) -> str:
@@ -87,8 +84,8 @@ def _training_lines(variant: str, v: Mapping[str, Any]) -> list[str]:
              f"bending rms {imp['q_rms']:.3g} rad"]
     act = v.get("actuator")
     if act:
-        lines.append(f"  - actuator (every network and baseline): "
-                     f"{act.get('note') or act['describe']}")
+        told = (act.get("note") or act["describe"]).removeprefix("actuator: ")
+        lines.append(f"  - actuator (every network and baseline): {told}")
     for kind, label in NETWORKS:
         n = v["networks"][kind]
         t = n["train"]
