@@ -25,7 +25,9 @@ from pathlib import Path
 from typing import Any
 
 import equinox as eqx
+import jax
 
+from softpinn import locks
 from softpinn.errors import UserError
 from softpinn.files import atomic_write, json_text
 
@@ -219,10 +221,13 @@ def read_history(path: str | Path) -> list[dict]:
 
 def check_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = False) -> Path:
     """The refusals of :func:`prepare_run_dir`, without writing or removing anything (so that a
-    command can give them before its work starts)."""
+    command can give them before its work starts); also a folder another process is training
+    into (:func:`softpinn.locks.check_free`)."""
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise UserError(f"run directory {out} is a file")
+    if _shared_writer():
+        locks.check_free(out, flag="out")
     if not out.exists():
         for parent in out.parents:
             if parent.exists():
@@ -247,20 +252,38 @@ def prepare_run_dir(out_dir: str | Path, *, force: bool = False, resume: bool = 
     A directory that holds anything is refused unless ``resume`` (continue it) or ``force``
     (remove the files its manifest lists, i.e. those softpinn wrote, and member folders; a run
     without a manifest loses only the names in :data:`RUN_FILES`; nothing else is deleted).
+
+    The folder is claimed (:func:`softpinn.locks.hold`) until the end of the caller's
+    :func:`softpinn.locks.scope` (``learn.train`` runs in one) or of the process: a second
+    writer is refused with one line naming this one.
     """
-    out = check_run_dir(out_dir, force=force, resume=resume)
-    if resume:
-        return out
-    if out.is_dir() and any(out.iterdir()):
-        for p in out.glob(MEMBER_PREFIX + "*"):
-            if p.is_dir() and (p / "config.json").exists():
-                remove_written(p)
-        remove_written(out)
+    out = check_run_dir(out_dir, force=force, resume=resume)  # a refused run takes nothing
+    taken = locks.hold(out, "train", flag="out")
     try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise cannot_write(out, exc) from None
+        # again, held: another run may have ended in it since
+        out = check_run_dir(out_dir, force=force, resume=resume)
+        if resume:
+            return out
+        if out.is_dir() and any(out.iterdir()):
+            for p in out.glob(MEMBER_PREFIX + "*"):
+                if p.is_dir() and (p / "config.json").exists():
+                    remove_written(p)
+            remove_written(out)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise cannot_write(out, exc) from None
+    except BaseException:
+        if taken:
+            locks.release(out)
+        raise
     return out
+
+
+def _shared_writer() -> bool:
+    """Whether this process writes the run directories of its command: the only process, or
+    process 0 of several (the others write private copies, :mod:`learn.distributed`)."""
+    return not jax.distributed.is_initialized() or jax.process_index() == 0
 
 
 def remove_written(folder: Path) -> None:

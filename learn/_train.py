@@ -23,6 +23,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
+from softpinn import locks
 from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
 from softpinn.learn import distributed
@@ -188,6 +189,7 @@ def update_stored_config(run_dir: Path, stored: dict, config: TrainConfig) -> No
 # ---------------------------------------------------------------------------------- train
 
 
+@locks.scope()  # the run directory's claim (ckpt.prepare_run_dir) ends with the run
 def train(
     data: Dataset | str | Path,
     config: TrainConfig | None,

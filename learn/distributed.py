@@ -36,6 +36,9 @@ def initialize(coordinator: str | None = None, num_processes: int | None = None,
         host, sep, port = str(coordinator).rpartition(":")
         if not sep or not host or not port.isdigit():
             raise UserError(f"coordinator: expected HOST:PORT, got {coordinator!r}")
+        if not 1 <= int(port) <= 65535:  # issue 44: a port no process can listen on
+            raise UserError(f"coordinator: port {int(port)} of {coordinator!r} is not a TCP "
+                            "port (1 to 65535)")
         if not (isinstance(num_processes, int) and num_processes >= 1):
             raise UserError(f"num_processes: expected an integer >= 1, got {num_processes!r}")
         if not (isinstance(process_id, int) and 0 <= process_id < num_processes):

@@ -72,7 +72,9 @@ def test_derive_killed_half_way_leaves_nothing_that_blocks_the_rerun(tmp_path, c
             proc.kill()
             proc.wait()
     assert not out.exists()
-    assert [p.name.startswith(".d1.partial-") for p in tmp_path.glob(".d1*")] == [True]
+    # its partial folder, and its claim's lock file (softpinn.locks: not held, nothing blocks)
+    assert sorted(p.name.startswith(".d1.partial-") for p in tmp_path.glob(".d1*")) == [
+        False, True] and (tmp_path / ".d1.lock").is_file()
     status, _, err = run(capsys, "derive", "task1", "--out", out)  # no --force needed
     assert status == 0, err
     assert (out / "summary.json").is_file() and (out / "softpinn_eom.so").is_file()

@@ -10,6 +10,10 @@ the next one). Any other non-empty folder (a user's, a run directory, another co
 is refused with one line unless ``--force``; ``--force`` writes into it and removes nothing. A
 rerun is refused too where a file the finished command recorded has changed since (its user
 edited it): the sha256 in the manifest tells.
+
+The claim is exclusive (:mod:`softpinn.locks`): the command holds the folder's lock until it
+ends, so a second writer of the same folder, started together with it or later, is refused
+with one line naming the process that holds it.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
+from softpinn import locks
 from softpinn.errors import UserError
 from softpinn.files import NULL, jsonable, write_json
 from softpinn.learn import file_sha256
@@ -111,6 +116,7 @@ def check(out: str | Path, command: str, *, force: bool = False) -> str | None:
     if out.exists() and not out.is_dir():
         raise UserError(f"out: {out} is a file, not a folder")
     check_parent(out, "out")
+    locks.check_free(out, flag="out")
     who = owner(out)
     if who is not None and who != command and not force:
         raise UserError(
@@ -129,18 +135,34 @@ def check(out: str | Path, command: str, *, force: bool = False) -> str | None:
 
 
 def claim(out: str | Path, command: str, *, force: bool = False) -> Path:
-    """Make ``out`` the output folder of ``command`` (see the module's docstring)."""
+    """Make ``out`` the output folder of ``command`` (see the module's docstring); the
+    command holds its lock (:func:`softpinn.locks.hold`) until it ends."""
     out = Path(out)
-    who = check(out, command, force=force)
+    check(out, command, force=force)  # a refused command takes nothing
+    taken = locks.hold(out, command, flag="out")
     try:
+        who = check(out, command, force=force)  # again, held: another writer may have ended
         out.mkdir(parents=True, exist_ok=True)
         previous = (_read(out) or {}).get("files", {}) if who == command else {}
         # not complete until record(): an interrupted run's rewritten files are its own
         _write(out, {"format": FORMAT, "command": command, "files": previous,
                      "complete": False})
     except OSError as exc:
+        if taken:
+            locks.release(out)
         raise UserError(f"out: {out}: cannot write there ({exc.strerror or exc})") from None
+    except BaseException:
+        if taken:
+            locks.release(out)
+        raise
     return out
+
+
+def hold(path: str | Path, command: str) -> None:
+    """Hold the exclusive claim on ``path`` (a dataset file, or a folder a command writes
+    whole: ``derive``, ``export``) until ``command`` ends (:func:`softpinn.locks.hold`): a
+    second writer is refused with one line naming the process that holds it."""
+    locks.hold(path, command, flag="out")
 
 
 def record(out: str | Path, paths: Iterable[str | Path]) -> None:

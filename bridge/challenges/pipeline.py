@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from softpinn import locks
 from softpinn.bridge.base import outputs
 from softpinn.bridge.tasks.plan import ReproduceConfig
 from softpinn.files import write_json
@@ -88,6 +89,7 @@ def _jsonable(x):
     raise TypeError(f"not JSON-ready: {type(x).__name__}")
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def run_challenges(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
                    progress=None, force: bool = False) -> ChallengesRun:
     """Run every study of :data:`STUDIES` into ``out_dir`` (``config.quick``: their quick

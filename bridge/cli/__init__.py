@@ -16,6 +16,7 @@ import argparse
 import importlib
 import sys
 
+from softpinn import locks
 from softpinn.bridge.cli._messages import as_flag, resume_hint
 from softpinn.bridge.cli._parser import DefaultsFormatter, Parser
 from softpinn.errors import UserError
@@ -62,7 +63,8 @@ def main(argv: list[str] | None = None) -> int:
 
         enable_compile_cache()
     try:
-        status = args.func(args)
+        with locks.scope():  # the claims on outputs (softpinn.locks) end with the command
+            status = args.func(args)
     except KeyboardInterrupt:
         print(f"softpinn: interrupted{resume_hint(args)}", file=sys.stderr)
         return 130

@@ -15,6 +15,7 @@ from softpinn.bridge.analysis.forces import data_samples
 from softpinn.bridge.analysis.transform_result import Status, match_word
 from softpinn.bridge.analysis.transforms import TRANSFORMS
 from softpinn.bridge.base import outputs
+from softpinn.bridge.base.release import before_claim, release
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.cli.runnotes import member_notes
 from softpinn.bridge.figures.analysis import write_report
@@ -53,6 +54,8 @@ def run(args) -> int:
                 f"got {len(args.q)}"
             )
         q = np.asarray(args.q, dtype=float).reshape(-1, spec.n)
+        if not np.all(np.isfinite(q)):
+            raise UserError(f"--q: expected finite numbers, got {args.q}")
         k = len(q)
         if "smooth" in transforms and len(q) < 8:
             transforms = tuple(t for t in transforms if t != "smooth")
@@ -63,12 +66,17 @@ def run(args) -> int:
             np.zeros((0, spec.n)), 0)
         q = np.concatenate([table, _data_q(run, args.data, args.points)])
     samples = _force_samples(run, args.data, args.samples, transforms)
+    state = before_claim(args.out)
     out = outputs.claim(args.out, "analyze", force=args.force)
-    result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
-    notes = _recorded_notes(run, spec) + member_notes(args.run, run, args.member)
-    for note in notes:
-        print(f"softpinn: note: {note}", file=sys.stderr)
-    paths = write_report(result, out, max_table_q=max(k, 3), notes=notes)
+    try:  # issue 44: a refusal after the claim leaves nothing (a new or empty --out)
+        result = analyze(TrueModel(spec), run.model, q, transforms=transforms, samples=samples)
+        notes = _recorded_notes(run, spec) + member_notes(args.run, run, args.member)
+        for note in notes:
+            print(f"softpinn: note: {note}", file=sys.stderr)
+        paths = write_report(result, out, max_table_q=max(k, 3), notes=notes)
+    except UserError:
+        release(out, state)
+        raise
     outputs.record(out, paths.values())
     if args.json:
         print(json.dumps(result.to_dict()))

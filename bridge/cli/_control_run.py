@@ -28,6 +28,19 @@ def _bounds(values, m: int, flag: str):
     return tuple(float(v) for v in np.broadcast_to(a, (m,)))
 
 
+def _check_order(u_min, u_max, *, given) -> None:
+    """One line where a lower bound exceeds its upper one (before any work or file)."""
+    if u_min is None or u_max is None:
+        return
+    bad = [j for j, (lo, hi) in enumerate(zip(u_min, u_max, strict=True)) if lo > hi]
+    if bad:
+        j = bad[0]
+        lo = "--u-min" if given[0] else "the default lower bound"
+        hi = "--u-max" if given[1] else "the default upper bound"
+        raise UserError(f"--u-min/--u-max: input {j + 1}: {lo} {u_min[j]:g} exceeds {hi} "
+                        f"{u_max[j]:g}")
+
+
 def run(args) -> int:
     if args.runs:  # the runs are rebuilt from float64 weights (as `softpinn export`)
         enable_x64()
@@ -41,6 +54,7 @@ def run(args) -> int:
     if data_bounds is not None:
         u_min = tuple(float(v) for v in data_bounds[0]) if u_min is None else u_min
         u_max = tuple(float(v) for v in data_bounds[1]) if u_max is None else u_max
+    _check_order(u_min, u_max, given=(args.u_min is not None, args.u_max is not None))
     mpc = MPCConfig(
         horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
         stiffness=args.stiffness,

@@ -8,6 +8,7 @@ import json
 import time
 from pathlib import Path
 
+from softpinn.bridge.base import outputs
 from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
 from softpinn.bridge.exact.serialize import function_data
 from softpinn.errors import UserError
@@ -43,6 +44,7 @@ def run(args) -> int:
             f"--out {out}: directory is not empty and holds no earlier derive output (use --force)"
         )
     check_writable("--out", out)
+    outputs.hold(out, "derive")  # one writer of --out at a time (softpinn.locks)
     t0 = time.perf_counter()
     model = derive(spec)
     t_derive = time.perf_counter() - t0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import sys
 
+from softpinn.bridge.base import outputs
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.export import export_run
 
@@ -17,6 +18,7 @@ def run(args) -> int:
         if not args.json:
             print(f"export: {text}", file=sys.stderr, flush=True)
 
+    outputs.hold(args.out, "export")  # one writer of --out at a time (softpinn.locks)
     result = export_run(args.run, args.out, member=args.member, mean=args.mean, force=args.force,
                         log=log)
     if args.json:

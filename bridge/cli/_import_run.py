@@ -7,16 +7,22 @@ import json
 import sys
 from pathlib import Path
 
+from softpinn.bridge.base import outputs
 from softpinn.errors import UserError
 from softpinn.symbolic import import_recordings, write_dataset
 
 
 def run(args) -> int:
     out = Path(args.out)
+    if out.is_dir():  # issue 44: --force writes over a file, never a folder
+        raise UserError(f"--out {out}: is a folder; give a file name ending in .npz (e.g. "
+                        f"{out / 'data.npz'})")
     if out.suffix != ".npz":
         raise UserError(f"--out {out}: a dataset file must end in .npz")
+    outputs.check_parent(out, "--out")
     if out.exists() and not args.force:
         raise UserError(f"--out {out}: file exists (use --force to overwrite)")
+    outputs.hold(out, "import")  # one writer of --out at a time (softpinn.locks)
     result = import_recordings(
         args.files,
         args.model,

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softpinn.bridge.base import outputs
 from softpinn.bridge.cli.bars import CountBar
 from softpinn.bridge.cli.checks import check_writable, positive, warnings_as_lines
 from softpinn.errors import UserError
@@ -73,6 +74,8 @@ def run(args) -> int:
         if path.exists() and not args.force:
             raise UserError(f"--out {path}: file exists (use --force to overwrite)")
     check_writable("--out", out)
+    for path in targets:  # one writer of each file at a time (softpinn.locks)
+        outputs.hold(path, "simulate")
 
     plan = plan_dataset(
         spec,

@@ -17,6 +17,7 @@ from tqdm.auto import tqdm
 
 from softpinn.actuator import Actuator
 from softpinn.bridge.analysis.baselines import BASELINES
+from softpinn.bridge.base import outputs
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.cli.bars import TrainBar
 from softpinn.bridge.cli.runnotes import held_out_text
@@ -167,6 +168,7 @@ def train_linear(args) -> int:
     as its ``to_dict`` JSON, with config.json (the split) and metrics.json (the fit
     residuals): every file whole (:func:`softpinn.files.write_json`)."""
     check_linear_flags(args)
+    outputs.hold(args.out, "train")  # one writer of --out at a time (softpinn.locks)
     check_run_dir(args.out, force=args.force)
     if args.test_trajectories is not None and args.test_count is not None:
         raise UserError("give --test-trajectories or --test-count, not both")

@@ -37,9 +37,11 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from softpinn import locks
 from softpinn._version import __version__
 from softpinn.bridge.base import outputs
 from softpinn.bridge.base.outputs import to_jsonable
+from softpinn.bridge.base.release import before_claim, release
 from softpinn.bridge.control.actuation import delay_steps
 from softpinn.bridge.control.config import REFERENCES, ControlConfig
 from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
@@ -53,8 +55,9 @@ from softpinn.bridge.control.models import (
     resolve_run,
     tip_output,
 )
-from softpinn.bridge.control.mpc import MPC
+from softpinn.bridge.control.mpc import MPC, input_bounds
 from softpinn.bridge.control.references import (
+    check_lengths,
     circle_reference,
     circle_start,
     default_center,
@@ -71,6 +74,8 @@ from softpinn.symbolic import TrueModel, load_spec
 __all__ = ["compare", "ControlConfig", "REFERENCES", "FORMAT"]
 
 FORMAT = "softpinn-control"
+#: the most control steps of one reference
+MAX_STEPS = 1_000_000
 
 
 def machine() -> str:
@@ -97,21 +102,16 @@ def _references(tm, output, names, *, dt, horizon, center, radius, period, hold,
     for name in names:
         if name == "circle":
             q0, u0 = equilibrium(tm, circle_start(center, radius))
-            length = period if duration is None else duration
             info = {"kind": "circle", "center": center, "radius": radius, "period": period}
         elif name == "step":
             q0, u0 = equilibrium(tm, center)
             targets = [equilibrium(tm, q)[0] for q in step_targets(center, radius)]
-            length = hold * len(targets) if duration is None else duration
             info = {"kind": "step", "center": center, "radius": radius, "hold": hold,
                     "targets": targets}
         else:
             raise UserError(f"reference: expected one of {', '.join(REFERENCES)}, got "
                             f"{name!r}")
-        steps = int(round(length / dt))
-        if steps < 1:
-            raise UserError(f"duration: {length:g} s is shorter than one control step "
-                            f"({dt:g} s)")
+        steps = _steps(_length(name, tm.n, period, hold, duration), dt)
         times = np.arange(1, steps + horizon + 1) * dt
         if name == "circle":
             R = circle_reference(output, center, radius, period, times)
@@ -125,6 +125,24 @@ def _references(tm, output, names, *, dt, horizon, center, radius, period, hold,
     return refs
 
 
+def _length(name: str, n: int, period: float, hold: float, duration: float | None) -> float:
+    """Seconds of the reference ``name``: ``duration``, else one round of the circle or each
+    step target (two or four, :func:`step_targets`) held ``hold``."""
+    if duration is not None:
+        return duration
+    return period if name == "circle" else hold * (4 if n > 1 else 2)
+
+
+def _steps(length: float, dt: float) -> int:
+    steps = int(round(length / dt))
+    if steps < 1:
+        raise UserError(f"duration: {length:g} s is shorter than one control step ({dt:g} s)")
+    if steps > MAX_STEPS:  # a rate or duration no comparison finishes (nor fits in memory)
+        raise UserError(f"rate: {1 / dt:g} Hz over {length:g} s is {steps} control steps; "
+                        f"at most {MAX_STEPS} per reference")
+    return steps
+
+
 def _unique(name: str, taken) -> str:
     if name not in taken:
         return name
@@ -134,6 +152,7 @@ def _unique(name: str, taken) -> str:
     return f"{name}-{i}"
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None = None, *,
             names: Sequence[str] | None = None, compiler=None, force: bool = False,
             log: Callable[[str], None] | None = None,
@@ -150,8 +169,23 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
     ``out``: the folder written (None: nothing is written); one that holds anything but an
     earlier comparison is refused unless ``force``. ``log``: called with one line per finished
     simulation. ``progress``: once per step; ``progress_total``: once, before the first step,
-    with the number of steps of all the simulations (controllers x references).
+    with the number of steps of all the simulations (controllers x references). A refusal
+    after ``out`` was claimed removes the claim where ``out`` was new or empty
+    (:mod:`.release`).
     """
+    claimed: list = []
+    try:
+        return _compare(model, runs, out, config, names=names, compiler=compiler, force=force,
+                        log=log, progress=progress, progress_total=progress_total,
+                        claimed=claimed)
+    except UserError:
+        for folder, fresh in claimed:
+            release(folder, fresh)
+        raise
+
+
+def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
+             progress_total, claimed: list) -> dict:
     t_start = time.perf_counter()
     config = ControlConfig() if config is None else config
     if not isinstance(config, ControlConfig):
@@ -171,8 +205,14 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
               else np.asarray(config.center, float).ravel())
     if center.size != spec.n or not np.all(np.isfinite(center)):
         raise UserError(f"center: expected {spec.n} finite coordinates of {spec.name} "
-                        f"({', '.join(spec.coordinate_names)}), got {center.size}")
+                        f"({', '.join(spec.coordinate_names)}), got "
+                        f"{center.size if center.size != spec.n else center.tolist()}")
     radius = default_radius(spec) if config.radius is None else config.radius
+    check_lengths(spec, center, radius)  # a centre that describes no arm (issue 44)
+    input_bounds(mpc_config, spec.m)
+    for name in config.references:  # issue 44: every argument checked before the claim
+        _steps(_length(name, spec.n, config.period, config.hold, config.duration),
+               mpc_config.dt)
 
     if out is not None:
         outputs.check(Path(out), "control", force=force)  # one line, before any work
@@ -201,6 +241,9 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
             if (pm.n, pm.m) != (spec.n, spec.m):
                 raise UserError(f"runs: {run} learned a model with n = {pm.n}, m = {pm.m}; "
                                 f"{spec.name} has n = {spec.n}, m = {spec.m}")
+            if pm.info.get("verified") is False:
+                say(f"note: {run}: an export written before checksums (model.json has no "
+                    "sha256): its files are not verified")
             trained_on = pm.info.get("data_spec")
             if trained_on and trained_on != spec.name:
                 say(f"note: {run} was trained on data of {trained_on}, not {spec.name}")
@@ -209,7 +252,16 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
             models.append(pm)
         if config.include_linear:
             models.append(linearised(tm, np.concatenate([qc, np.zeros(spec.n)]), uc, output))
-        out_dir = outputs.claim(out, "control", force=force) if out is not None else None
+        act = _plant_actuator(models, runs)
+        refs = _references(tm, output, config.references, dt=mpc_config.dt,
+                           horizon=mpc_config.horizon + delay_steps(act, spec.m, mpc_config.dt),
+                           center=center, radius=radius, period=config.period,
+                           hold=config.hold, duration=config.duration)
+        out_dir = None
+        if out is not None:
+            fresh = before_claim(out)
+            out_dir = outputs.claim(out, "control", force=force)
+            claimed.append((out_dir, fresh))
         if out_dir is not None:
             for pm in models:
                 if pm.name in exported:
@@ -225,13 +277,8 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
     finally:
         scratch.cleanup()
 
-    act = _plant_actuator(models, runs)
     models = [actuate(pm, act) if pm.info.get("source") in ("true", "linearised") else pm
               for pm in models]
-    refs = _references(tm, output, config.references, dt=mpc_config.dt,
-                       horizon=mpc_config.horizon + delay_steps(act, spec.m, mpc_config.dt),
-                       center=center, radius=radius,
-                       period=config.period, hold=config.hold, duration=config.duration)
     plant_fn = plant(tm, mpc_config.dt, actuator=act)
 
     controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}

@@ -30,6 +30,7 @@ from softpinn.actuator import Actuator
 from softpinn.bridge.control.actuation import actuated, lagged_inputs
 from softpinn.bridge.export import export_run, load_exported, model_params
 from softpinn.bridge.export.layers import mlp
+from softpinn.bridge.export.verify import read_export
 from softpinn.errors import UserError
 from softpinn.learn import load_run
 from softpinn.symbolic import planar_plate, spatial_tip
@@ -111,8 +112,8 @@ def from_export(directory, output: ca.Function, name: str | None = None) -> Pred
     """The exported network in ``directory`` (see :mod:`softpinn.bridge.export`)."""
 
     directory = Path(directory)
+    meta, verified = read_export(directory)  # issue 44: checksums before CasADi sees a file
     fns = load_exported(directory)
-    meta = json.loads((directory / "model.json").read_text())
     n, m = int(meta["n"]), int(meta["m"])
     to_state = _identity_state
     if meta["state_kind"] == "momentum":
@@ -131,7 +132,8 @@ def from_export(directory, output: ca.Function, name: str | None = None) -> Pred
             "seeds": meta.get("ensemble", {}).get("seeds"),
             "data_spec": meta.get("training", {}).get("data_spec"),
             "q_range": meta.get("training", {}).get("q_range"),
-            "field": "MX from the run's weights" if rebuilt is not None else "SX"}
+            "field": "MX from the run's weights" if rebuilt is not None else "SX",
+            "verified": verified}
     model = PredictionModel(name or meta["kind"], n, m, rebuilt or field_fn, to_state, output,
                             info)
     act = meta.get("actuator")  # exports written before actuators have none

@@ -50,7 +50,8 @@ from softpinn.bridge.control.rk4 import _sym, rk4_map
 from softpinn.errors import UserError
 from softpinn.symbolic import DEFAULT_FLAGS, compile_functions
 
-__all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES"]
+__all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES",
+           "input_bounds"]
 
 #: the least share of its predicted decrease of the cost an approximate step must achieve
 APPROXIMATE_RATIO = 0.9
@@ -74,6 +75,16 @@ def _vector(value, m, default, name):
     if np.any(np.isnan(a)):
         raise UserError(f"{name}: values must be numbers, got {a.tolist()}")
     return a
+
+
+def input_bounds(config: MPCConfig, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """(u_min, u_max) of ``config`` per input (unbounded where None); one line where a lower
+    bound exceeds its upper one (checked by :func:`~.compare.compare` before any work)."""
+    lb = _vector(config.u_min, m, -np.inf, "u_min")
+    ub = _vector(config.u_max, m, np.inf, "u_max")
+    if np.any(lb > ub):
+        raise UserError(f"u_min {lb.tolist()} exceeds u_max {ub.tolist()}")
+    return lb, ub
 
 
 def _substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int:
@@ -126,10 +137,7 @@ class MPC:
                else np.zeros(0))
         self._decay = np.exp(-config.dt / tau) if tau.size else np.zeros(0)
         self.ny = model.output.size1_out(0)
-        self._lbu = _vector(config.u_min, m, -np.inf, "u_min")
-        self._ubu = _vector(config.u_max, m, np.inf, "u_max")
-        if np.any(self._lbu > self._ubu):
-            raise UserError(f"u_min {self._lbu.tolist()} exceeds u_max {self._ubu.tolist()}")
+        self._lbu, self._ubu = input_bounds(config, m)
         self._uref = _vector(config.u_ref, m, 0.0, "u_ref")
         self.compiled = False
         t0 = time.perf_counter()

@@ -27,7 +27,29 @@ from softpinn.errors import UserError
 from softpinn.symbolic import data_config, draw_trajectories, plan_dataset
 
 __all__ = ["circle_reference", "circle_start", "step_reference", "equilibrium", "step_targets",
-           "default_center", "default_radius", "default_input_bounds"]
+           "default_center", "default_radius", "default_input_bounds", "check_lengths"]
+
+
+def check_lengths(spec, center, radius: float) -> None:
+    """Refuse (one line naming ``center`` or ``radius`` and the segment) a centre, or a
+    reference around it (± ``radius`` in q's first two coordinates), where a PCC segment's
+    length L + dL is not positive: such a q describes no arm (issue 44)."""
+    if spec.kind not in ("spatial-pcc", "planar-pcc"):
+        return
+    c = np.asarray(center, float).ravel()
+    for k, name in enumerate(spec.coordinate_names):
+        if not (name.startswith("dL") and name[2:].isdigit()):
+            continue
+        i = int(name[2:])
+        L = float(spec.segments[i - 1].length)
+        if c[k] <= -L:
+            raise UserError(f"center: {name} = {c[k]:g} makes segment {i}'s length "
+                            f"L + {name} = {L + c[k]:g} m, not > 0 (L = {L:g} m); give "
+                            f"{name} > {-L:g}")
+        if k < 2 and c[k] - radius <= -L:
+            raise UserError(f"radius: {radius:g} takes {name} to {c[k] - radius:g} around the "
+                            f"centre's {c[k]:g}, where segment {i}'s length L + {name} is not "
+                            f"> 0 (L = {L:g} m); give a radius < {c[k] + L:g}")
 
 
 def _data_range(spec):

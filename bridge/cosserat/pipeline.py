@@ -43,6 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from softpinn import locks
 from softpinn.bridge.analysis.baselines import BaselineComparison, verdict
 from softpinn.bridge.base import outputs
 from softpinn.bridge.cosserat.settings import NETWORKS, CosseratPlan, make_plan
@@ -134,6 +135,7 @@ def run_variant(plan: CosseratPlan, variant: str, stages: Stages, progress) -> d
             "baselines": baselines, "verdicts": verdicts(networks, baselines)}
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def run_cosserat(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
                  progress=None, force: bool = False) -> CosseratRun:
     """Run the study into ``out_dir`` (``config.quick``: the quick form, for CI). Refused with

@@ -11,7 +11,9 @@ The output directory holds
   without a C compiler);
 * ``model.json``: kind, sizes, state and coordinate names, units, the training data and
   configuration, the integrator of ``step``, the run's actuator (``actuator``: numbers, text
-  and what to feed the model), a checksum of the run's files, the versions;
+  and what to feed the model), a checksum of the run's files, the versions, and ``sha256``:
+  the checksum of every other file written here, which every loader checks
+  (:mod:`.verify`);
 * for a run with an actuator (issue 43 item 2) also ``actuator.casadi`` and
   ``actuator_step.casadi`` (:mod:`.actuator`): the model's ``u`` is the actuator's output.
 """
@@ -33,6 +35,7 @@ from softpinn.bridge.base import outputs
 from softpinn.bridge.export.actuator import actuator_functions, actuator_metadata
 from softpinn.bridge.export.dynamics import export_functions
 from softpinn.bridge.export.params import model_params
+from softpinn.bridge.export.verify import CHECKSUMS, file_checksums, read_export
 from softpinn.errors import UserError
 from softpinn.learn import load_run, run_actuator
 from softpinn.symbolic import compile_functions
@@ -269,6 +272,10 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
         "model_file": {"file": "model.casadi", "function": "qdd"},
         "c": c_info,
     })
+    # issue 44: every loader checks these before CasADi sees a file (:mod:`.verify`)
+    written = ["model.casadi", *(f"{key}.casadi" for key in fns),
+               *(c_info[k] for k in ("source", "header", "library") if c_info.get(k))]
+    result[CHECKSUMS] = file_checksums(out, written)
     tmp = out / ".model.json.tmp"
     tmp.write_text(json.dumps(result, indent=1))
     os.replace(tmp, out / "model.json")
@@ -279,10 +286,19 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
 
 
 def load_exported(out_dir) -> dict[str, ca.Function]:
-    """The Functions of an export directory, by name (``casadi.Function.load`` of each file)."""
+    """The Functions of an export directory, by name (``casadi.Function.load`` of each file),
+    after checking every file's sha256 against ``model.json`` (:func:`.verify.read_export`: a
+    changed or missing file is refused in one line; an export written before the checksums
+    loads unverified)."""
     out = Path(out_dir)
-    meta_path = out / "model.json"
-    if not meta_path.is_file():
-        raise UserError(f"{out}: not a softpinn export directory (no model.json)")
-    meta = json.loads(meta_path.read_text())
-    return {k: ca.Function.load(str(out / v["file"])) for k, v in meta["functions"].items()}
+    meta, verified = read_export(out)
+    try:
+        files = {k: str(v["file"]) for k, v in meta["functions"].items()}
+    except (TypeError, KeyError, AttributeError):
+        raise UserError(f"{out / 'model.json'}: its functions table is damaged; export the "
+                        "run again") from None
+    unlisted = [f for f in files.values() if verified and f not in meta[CHECKSUMS]]
+    if unlisted:  # every file CasADi loads has been checked
+        raise UserError(f"{out / unlisted[0]}: model.json lists no checksum for it; export "
+                        "the run again")
+    return {k: ca.Function.load(str(out / f)) for k, f in files.items()}

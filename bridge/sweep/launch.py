@@ -14,6 +14,7 @@ import signal
 import socket
 from pathlib import Path
 
+from softpinn import locks
 from softpinn.bridge.base import outputs
 from softpinn.bridge.sweep.config import SweepConfig
 from softpinn.bridge.sweep.results import SweepResult, write_results
@@ -68,6 +69,7 @@ def _start_ray(ray, config: SweepConfig, verbose: int) -> None:
         raise UserError(f"address: cannot start or reach {where}: {first}{hint}") from None
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def sweep(data, base_config: TrainConfig, space: dict, out: str | Path,
           config: SweepConfig | None = None, *, force: bool = False, verbose: int = 0,
           progress=None) -> SweepResult:

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from softpinn import locks
 from softpinn.actuator import Actuator
 from softpinn.bridge.base import outputs
 from softpinn.bridge.tasks import parallel
@@ -261,6 +262,7 @@ class ExperimentRun:
     seconds: float
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def run_experiment(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
                    progress=None, force: bool = False) -> ExperimentRun:
     """Run the experiment's stages into ``out_dir`` (see the module docstring, steps 1-6). The

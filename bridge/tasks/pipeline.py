@@ -44,6 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from softpinn import locks
 from softpinn.bridge.base import outputs
 from softpinn.bridge.figures.figsave import is_draft
 from softpinn.bridge.figures.task import _variant_figures
@@ -82,6 +83,7 @@ class TaskRun:
     seconds: float
 
 
+@locks.scope()  # the output's lock is given up when the call returns
 def run_task(config: ReproduceConfig, out_dir, *, log: Callable[[str], None],
              progress: ProgressFn | None = None, force: bool = False) -> TaskRun:
     """Run a task's stages into ``out_dir`` (see the module docstring): the data, then every

@@ -63,6 +63,21 @@ def cache_dir(directory: str | os.PathLike | None = None) -> Path:
     return Path("~/.cache/softpinn").expanduser().absolute()
 
 
+#: caches whose stale build folders this process has removed (:func:`open_cache`)
+_opened: set[Path] = set()
+
+
+def open_cache(directory: str | os.PathLike | None = None) -> Path:
+    """The cache directory (:func:`cache_dir`), its stale build folders and files (those of
+    killed compiles, :func:`remove_stale_builds`) removed the first time this process opens
+    it: a run served from the cache cleans up too, not only the next compile."""
+    cache = cache_dir(directory)
+    if cache not in _opened:
+        _opened.add(cache)
+        remove_stale_builds(cache)
+    return cache
+
+
 def content_hash(
     fns: Mapping[str, ca.Function], compiler: str = "", flags: Sequence[str] = ()
 ) -> str:
@@ -171,7 +186,7 @@ def compile_functions(
             )
         return Compiled(functions=dict(fns), compiled=False, from_cache=False)
     key = content_hash(fns, cc, flags)
-    cache = cache_dir(directory)
+    cache = open_cache(directory)
     root = cache / key
     stem = f"softpinn_{key}"
     library = root / f"{stem}.so"

@@ -25,9 +25,9 @@ from softpinn.symbolic import _outputs as outputs
 from softpinn.symbolic.codegen._codegen import (
     CompilerWarning,
     _warned,  # warned once per process, shared with compile_functions
-    cache_dir,
     check_names,
     content_hash,
+    open_cache,
     remove_stale_builds,
     write_c,
 )
@@ -224,7 +224,7 @@ def _install_in_cache(fns, library: Path, source: Path, cc: str, flags, director
     """Copy a compiled library and its source into the cache; a cache that cannot be written
     is skipped with one warning (the derive output itself is complete)."""
     key = content_hash(fns, cc, tuple(flags))
-    cache = cache_dir(None if directory is True else directory)
+    cache = open_cache(None if directory is True else directory)
     root = cache / key
     target = root / f"softpinn_{key}.so"
     try:

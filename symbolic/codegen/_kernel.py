@@ -44,7 +44,7 @@ import casadi as ca
 import numpy as np
 
 from softpinn.symbolic import _outputs as outputs
-from softpinn.symbolic.codegen._codegen import cache_dir, remove_stale_builds
+from softpinn.symbolic.codegen._codegen import open_cache, remove_stale_builds
 from softpinn.symbolic.codegen._compiler import (
     DEFAULT_TIMEOUT,
     CompilerError,
@@ -123,7 +123,7 @@ def build(source: str, tag: str, *, directory=None, compiler=None,
             continue
         h = hashlib.sha256(f"kernel {VERSION}\0{cc}\0{' '.join(flags + libs)}\0{ca.__version__}"
                            f"\0".encode() + source.encode()).hexdigest()[:24]
-        cache = cache_dir(directory)
+        cache = open_cache(directory)
         root = cache / f"kernel_{h}"
         library = root / f"{tag}_{h}.so"
         from_cache = library.is_file()

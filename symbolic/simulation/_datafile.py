@@ -103,9 +103,15 @@ def write_datasets(
     only when all are complete are they renamed into place (the first path last), so that an
     interrupted call leaves none of them and nothing that blocks a rerun; temporary siblings of
     a killed run are removed. Without ``force`` an existing file is refused before anything is
-    written. The meta must be strict JSON (no NaN or infinity).
+    written. The meta must be strict JSON (no NaN or infinity). The files are claimed while
+    they are written (:func:`symbolic._outputs.claimed`): one writer at a time.
     """
     paths = [Path(p) for p, _ in items]
+    with outputs.claimed(paths, "write_dataset"):
+        return _write_datasets(paths, items, force=force)
+
+
+def _write_datasets(paths: list[Path], items, *, force: bool) -> list[Path]:
     for path in paths:
         if path.suffix != ".npz":
             raise DataError(f"--out {path}: a dataset file must end in .npz")
