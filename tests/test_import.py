@@ -124,7 +124,7 @@ def test_observed_only_leaves_out_the_stretch(sim, tmp_path, capsys):
     np.testing.assert_array_equal(data.p, full.p[:, :2])  # M_bb q̇_b: the stretch rate is 0
     assert data.meta["n"] == 2 and data.meta["coordinates"] == ["dx1", "dy1"]
     assert data.meta["import"]["dropped"] == ["dL1"]
-    assert any("--observed-only" in note for note in result.notes)
+    assert any("--observed-only leaves out the stretch dL1" in note for note in result.notes)
     out = tmp_path / "obs.npz"
     assert main(["import", str(path), "--model", "task4", "--orientation", "quaternion",
                  "--observed-only", "--out", str(out)]) == 0

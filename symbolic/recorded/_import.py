@@ -261,8 +261,10 @@ def import_recordings(
         meta["actuator"] = spec.actuator_meta()
     if observed_only and unobserved:
         arrays, meta = _observed(spec, arrays, meta, unobserved)
-        notes.append(f"--observed-only: the dataset holds {', '.join(meta['coordinates'])} "
-                     f"only ({', '.join(unobserved)} left out)")
+        notes[0] = (f"orientation determines the bending ({', '.join(meta['coordinates'])}) "
+                    f"only: --observed-only leaves out the stretch {', '.join(unobserved)}, "
+                    "which it cannot see")
+        meta["import"]["notes"] = notes
     return ImportResult(DatasetArrays(meta=meta, **arrays), notes)
 
 
