@@ -16,7 +16,12 @@ from softpinn.errors import UserError
 from softpinn.symbolic._outputs import count_of, dumps
 from softpinn.symbolic.codegen import _kernel
 from softpinn.symbolic.codegen._codegen import CompilerWarning, cache_dir, compile_functions
-from softpinn.symbolic.codegen._compiler import DEFAULT_FLAGS, find_compiler
+from softpinn.symbolic.codegen._compiler import (
+    DEFAULT_FLAGS,
+    DEFAULT_TIMEOUT,
+    CompilerTimeout,
+    find_compiler,
+)
 from softpinn.symbolic.codegen._generate import generate, read_derive_summary
 from softpinn.symbolic.codegen._kernel import RK4 as KernelRK4
 from softpinn.symbolic.codegen._kernel import available as kernels_available
@@ -74,6 +79,7 @@ __all__ = [
     "cache_dir",
     "check_seed",
     "compile_functions",
+    "CompilerTimeout",
     "CompilerWarning",
     "condition_numbers",
     "COSSERAT_QUICK",
@@ -84,6 +90,7 @@ __all__ = [
     "DatasetArrays",
     "DatasetPlan",
     "DEFAULT_FLAGS",
+    "DEFAULT_TIMEOUT",
     "derive",
     "draw_trajectories",
     "dumps",

@@ -13,6 +13,7 @@ from tqdm.auto import tqdm
 
 from softpinn.bridge.cli._jax import enable_x64
 from softpinn.bridge.control import ControlConfig, MPCConfig, compare, default_input_bounds
+from softpinn.bridge.export import check_timeout
 from softpinn.errors import UserError
 from softpinn.symbolic import load_spec
 
@@ -60,7 +61,8 @@ def run(args) -> int:
         stiffness=args.stiffness,
         weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
-        max_iter=args.max_iter, codegen=not args.no_codegen, offset_free=args.offset_free,
+        max_iter=args.max_iter, codegen=not args.no_codegen,
+        compile_timeout=check_timeout(args.compile_timeout), offset_free=args.offset_free,
         offset_free_rate=args.offset_free_rate,
         sensitivities=args.sensitivities,
     )
@@ -81,10 +83,15 @@ def run(args) -> int:
     result.pop("traces", None)
     if args.json:
         print(json.dumps(result))
-        return 0
-    for line in headline(result):
-        print(line)
-    print(f"wrote {args.out}/report.md, results.json, figures/, traces/")
+    else:
+        for line in headline(result):
+            print(line)
+        print(f"wrote {args.out}/report.md, results.json, figures/, traces/")
+    failed = result.get("failed") or {}
+    if failed:  # the others' results are written: exit 2 with one line naming the failures
+        said = "; ".join(f"{name} ({f['stage']}): {f['error']}" for name, f in failed.items())
+        raise UserError(f"control: {len(failed)} controller(s) failed: {said}; the others' "
+                        f"results are in {args.out}/report.md")
     return 0
 
 
@@ -129,14 +136,18 @@ def headline(result: dict) -> list[str]:
 
     lines = [f"{result['model']}: MPC at {result['rate']:g} Hz, horizon {cfg['horizon']}, "
              f"{cfg['solver']}; plant: the true model (cvodes)"]
-    width = max(len(n) for n in result["controllers"]) + 2
+    width = max((len(n) for n in result["controllers"]), default=10) + 2
     for rname, per in result["results"].items():
         lines.append(f"{rname}: {'controller':<{width}}{'RMS [' + unit + ']':>12}"
                      f"{'max [' + unit + ']':>12}{'solve ms':>10}{'max ms':>9}  failures")
         for name, m in per.items():
             fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
+            fail += "".join(f", {k} {c}" for c, k in (m.get("failure_causes") or {}).items())
             lines.append(f"{'':<{len(rname) + 2}}{name:<{width}}"
                          f"{num(m['error_rms'], '.3g'):>12}{num(m['error_max'], '.3g'):>12}"
                          f"{num(m['solve_ms_mean'], '.2f'):>10}{num(m['solve_ms_max'], '.2f'):>9}"
                          f"  {fail}")
+    for name, f in (result.get("failed") or {}).items():
+        where = "building its MPC" if f["stage"] == "build" else f"on {f['stage']}"
+        lines.append(f"{name}: FAILED {where}: {f['error']}")
     return lines

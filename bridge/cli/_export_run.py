@@ -8,10 +8,11 @@ import sys
 
 from softpinn.bridge.base import outputs
 from softpinn.bridge.cli._jax import enable_x64
-from softpinn.bridge.export import export_run
+from softpinn.bridge.export import check_timeout, export_run
 
 
 def run(args) -> int:
+    check_timeout(args.compile_timeout)  # one line before any work
     enable_x64()
 
     def log(text):
@@ -20,11 +21,13 @@ def run(args) -> int:
 
     outputs.hold(args.out, "export")  # one writer of --out at a time (softpinn.locks)
     result = export_run(args.run, args.out, member=args.member, mean=args.mean, force=args.force,
-                        log=log)
+                        log=log, compile=not args.no_compile,
+                        compile_timeout=args.compile_timeout)
     if args.json:
         print(json.dumps(result, indent=1))
     else:
-        lib = result["c"]["library"] or "no library (no C compiler)"
+        lib = result["c"]["library"] or ("no library (--no-compile)" if args.no_compile
+                                         else "no library (no C compiler)")
         seeds = ", ".join(str(s) for s in result["ensemble"]["seeds"])
         averaged = result["ensemble"]["mode"] == "mean"
         if args.mean and not averaged:

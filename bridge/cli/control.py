@@ -112,7 +112,13 @@ def add_arguments(p) -> None:
                         "several times faster); lifted (frozen, and each step linearised "
                         "about the last plan's predicted states: one rollout per solve)")
     m.add_argument("--no-codegen", action="store_true",
-                   help="run the solver's functions in CasADi's virtual machine, no C compiler")
+                   help="compile nothing: the solver's functions run in CasADi's virtual "
+                        "machine, and a run's export gets no model.so (the prediction uses "
+                        "its Functions, not the library)")
+    m.add_argument("--compile-timeout", dest="compile_timeout", type=float,
+                   default=d.compile_timeout, metavar="S",
+                   help="seconds the C compiler may take per library (the solver's, a run's "
+                        "export)")
     m.add_argument("--compiler", metavar="CC", help="C compiler (default $CC, gcc, cc)")
 
     p.add_argument("--force", action="store_true",

@@ -6,14 +6,19 @@ to CasADi in-process, :func:`~.models.from_run`) and the true model linearised a
 reference's centre. It writes into ``out``:
 
 * ``results.json``: the settings, the machine, and per reference and controller the tracking
-  error (RMS, max, final, in the units of the output), input effort, solver failures, SQP
-  iterations and solve time per step (mean, median, p95, max in ms), and the build time;
+  error (RMS, max, final, in the units of the output), input effort, solver failures (per
+  cause, :mod:`.failures`), SQP iterations and solve time per step (mean, median, p95, max in
+  ms), and the build time; the controllers that ``failed`` (each with its error in one line),
+  what a failed solve applies (``fallback``) and whether the run was ``interrupted``;
 * ``report.md``: the same as tables, with the figures;
 * ``figures/``: per reference the paths (3-D for a spatial arm), the outputs and the error over
   time, the inputs and the solve times;
 * ``traces/<reference>.npz``: the time series (t, r, and y, u, x, solve seconds, success per
   controller) for your own plots;
 * ``models/<name>/``: each run's export (``softpinn export``'s files).
+
+A controller that raises does not stop the others, and Ctrl-C stops between control steps;
+either way what finished is written (issue 46, :mod:`.stepping`, :mod:`.interrupt`).
 
 Runs with an actuator (issue 43 item 2) plan the commands through it (:mod:`.actuation`); the
 plant is then the arm behind that actuator, and the true and linearised controllers know it too
@@ -44,7 +49,9 @@ from softpinn.bridge.base.outputs import to_jsonable
 from softpinn.bridge.base.release import before_claim, release
 from softpinn.bridge.control.actuation import delay_steps
 from softpinn.bridge.control.config import REFERENCES, ControlConfig
-from softpinn.bridge.control.loop import closed_loop, metrics, outside_data, plant
+from softpinn.bridge.control.failures import fallback
+from softpinn.bridge.control.interrupt import Interrupts
+from softpinn.bridge.control.loop import plant
 from softpinn.bridge.control.models import (
     PredictionModel,
     actuate,
@@ -67,6 +74,7 @@ from softpinn.bridge.control.references import (
     step_targets,
 )
 from softpinn.bridge.control.report import write_report
+from softpinn.bridge.control.stepping import _line, run_controllers  # noqa: F401 - _line was here
 from softpinn.errors import UserError
 from softpinn.files import atomic_write, write_json
 from softpinn.symbolic import TrueModel, load_spec
@@ -168,16 +176,20 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
     run (:class:`~.config.ControlConfig`). ``compiler``: the C compiler of the generated code.
     ``out``: the folder written (None: nothing is written); one that holds anything but an
     earlier comparison is refused unless ``force``. ``log``: called with one line per finished
-    simulation. ``progress``: once per step; ``progress_total``: once, before the first step,
-    with the number of steps of all the simulations (controllers x references). A refusal
+    simulation, before each controller is built and for each that failed (the result's
+    ``failed``; the call returns all the same). Ctrl-C raises ``KeyboardInterrupt`` after
+    the control step in flight, once what finished is written. ``progress``: once per step;
+    ``progress_total``: once, before the first step, with the number of steps of all the
+    simulations (controllers x references). A refusal
     after ``out`` was claimed removes the claim where ``out`` was new or empty
     (:mod:`.release`).
     """
     claimed: list = []
     try:
-        return _compare(model, runs, out, config, names=names, compiler=compiler, force=force,
-                        log=log, progress=progress, progress_total=progress_total,
-                        claimed=claimed)
+        with Interrupts() as guard:  # Ctrl-C: stop between steps, keep what finished
+            return _compare(model, runs, out, config, names=names, compiler=compiler,
+                            force=force, log=log, progress=progress,
+                            progress_total=progress_total, claimed=claimed, guard=guard)
     except UserError:
         for folder, fresh in claimed:
             release(folder, fresh)
@@ -185,7 +197,7 @@ def compare(model, runs: Sequence = (), out=None, config: ControlConfig | None =
 
 
 def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
-             progress_total, claimed: list) -> dict:
+             progress_total, claimed: list, guard: Interrupts) -> dict:
     t_start = time.perf_counter()
     config = ControlConfig() if config is None else config
     if not isinstance(config, ControlConfig):
@@ -233,11 +245,16 @@ def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
     exported = {}
     try:
         for i, run in enumerate(runs):
+            guard.check()
             name = _unique(names[i] if names is not None else kinds[i], taken)
             taken.add(name)
             export_dir = Path(scratch.name) / _safe(name)
             pm = from_run(run, output, export_dir=export_dir, name=name, member=config.member,
-                          mean=config.mean, compiler=compiler)
+                          # the prediction model runs the .casadi Functions, never the
+                          # export's model.so: no compile (392 s for a 3-segment network)
+                          mean=config.mean, compiler=compiler, compile=False,
+                          compile_timeout=mpc_config.compile_timeout,
+                          log=lambda text, name=name: say(f"{name}: export: {text}"))
             if (pm.n, pm.m) != (spec.n, spec.m):
                 raise UserError(f"runs: {run} learned a model with n = {pm.n}, m = {pm.m}; "
                                 f"{spec.name} has n = {spec.n}, m = {spec.m}")
@@ -281,29 +298,16 @@ def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
               for pm in models]
     plant_fn = plant(tm, mpc_config.dt, actuator=act)
 
-    controllers, results, traces = {}, {r: {} for r in refs}, {r: {} for r in refs}
     if progress_total is not None:
         progress_total(len(models) * sum(int(ref["steps"]) for ref in refs.values()))
-    for pm in models:
-        t0 = time.perf_counter()
-        mpc = MPC(pm, mpc_config, operating_point=(qc, np.zeros(spec.n), uc),
-                  compiler=compiler)
-        controllers[pm.name] = {**{k: v for k, v in pm.info.items() if k != "x0"},
-                                "build_seconds": time.perf_counter() - t0,
-                                "compiled": bool(mpc.compiled),
-                                "substeps": mpc.substeps,
-                                "compile": mpc.compile_info}
-        for rname, ref in refs.items():
-            res = closed_loop(mpc, plant_fn, ref["x0"], ref["R"], ref["steps"], u0=ref["u0"],
-                              progress=progress, actuator=act)
-            met = metrics(res)
-            if pm.info.get("q_range"):  # a learned model: did the arm leave its data?
-                met["outside_data"] = outside_data(res["x"], pm.info["q_range"], mpc_config.dt,
-                                                   spec.coordinate_names)
-            results[rname][pm.name] = met
-            traces[rname][pm.name] = res
-            say(_line(rname, pm.name, met, unit))
-
+    done = run_controllers(models, refs, mpc_config, operating_point=(qc, np.zeros(spec.n), uc),
+                           plant_fn=plant_fn, actuator=act, compiler=compiler, unit=unit,
+                           names=spec.coordinate_names, guard=guard, say=say,
+                           progress=progress, build=MPC)
+    if done.failed and not done.interrupted and not any(done.results.values()):
+        raise next(iter(done.errors.values()))  # nothing finished: the run fails, as before
+    # issue 46: what finished is kept (and written) when a controller failed or on Ctrl-C
+    results = {r: per for r, per in done.results.items() if per}
     result = {
         "format": FORMAT,
         "version": 1,
@@ -321,23 +325,33 @@ def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
         "config": dataclasses.asdict(mpc_config),
         "rate": 1.0 / mpc_config.dt,
         "references": {k: v["info"] for k, v in refs.items()},
-        "controllers": controllers,
+        "controllers": done.controllers,
         "results": results,
+        "failed": done.failed,
+        "interrupted": done.interrupted,
+        "fallback": fallback(mpc_config.solver),
         "seconds": time.perf_counter() - t_start,
     }
     result = to_jsonable(result)
     if out_dir is not None:
-        # matplotlib only when figures are drawn (``import softpinn.bridge.control`` stays
-        # light)
-        from softpinn.bridge.control.plots import write_figures
-
+        traces = {r: per for r, per in done.traces.items() if per}
         written = [_write_json(out_dir / "results.json", result)]
         written += _write_traces(out_dir, refs, traces, mpc_config.dt)
-        figures = write_figures(out_dir / "figures", spec, refs, traces, result)
+        figures = []
+        if not done.interrupted:  # after a Ctrl-C no figures (seconds), the rest at once
+            # matplotlib only when figures are drawn (``import softpinn.bridge.control``
+            # stays light)
+            from softpinn.bridge.control.plots import write_figures
+
+            figures = write_figures(out_dir / "figures", spec, refs, traces, result)
         written += [out_dir / f for f in figures]
         written.append(write_report(out_dir / "report.md", result, figures))
         outputs.record(out_dir, outputs.written_files(out_dir))
-    result["traces"] = traces
+    if done.interrupted:
+        if out_dir is not None:
+            say(f"control: interrupted; the controllers that finished are in {out_dir}")
+        raise KeyboardInterrupt
+    result["traces"] = done.traces
     return result
 
 
@@ -388,21 +402,6 @@ def _load() -> list[float] | None:
 
 def _casadi_version() -> str:
     return ca.__version__
-
-
-def _line(ref: str, name: str, met: dict, unit: str) -> str:
-    def num(v, fmt):
-        return "n/a" if v is None else format(v, fmt)
-
-    fail = f", {met['failures']} failed" if met["failures"] else ""
-    div = ", DIVERGED" if met["diverged"] else ""
-    away = met.get("outside_data") or {}
-    left = (f"; left its training data's configurations at {away['first_s']:.2f} s "
-            f"({away['steps']} of {met['steps']} steps: {', '.join(away['coordinates'])})"
-            if away.get("steps") else "")
-    return (f"{ref} / {name}: error RMS {num(met['error_rms'], '.3g')} {unit}, max "
-            f"{num(met['error_max'], '.3g')} {unit}; solve {num(met['solve_ms_mean'], '.2f')} ms "
-            f"mean, {num(met['solve_ms_max'], '.2f')} ms max{fail}{div}{left}")
 
 
 def _write_json(path: Path, obj) -> Path:

@@ -36,6 +36,9 @@ class MPCConfig:
     more converge each solve, at a multiple of the time) and 50 for IPOPT; ``tol``: the SQP
     stops earlier when the largest input change of an iteration is below it (IPOPT: its
     tolerance).
+    ``codegen``: compile the solver's Functions (and a learned run's export) to C; False runs
+    them in CasADi's virtual machine, nothing compiled. ``compile_timeout``: the C
+    compiler's limit in seconds per library.
     ``substeps`` is the least number of RK4 sub-steps per control step; with ``stiffness``
     > 0 and an operating point given to :class:`MPC`, a model whose linearisation there has
     eigenvalues λ gets more, until h max|λ| <= ``stiffness`` for the sub-step h (RK4 is stable
@@ -82,6 +85,7 @@ class MPCConfig:
     max_iter: int | None = None
     tol: float = 1e-6
     codegen: bool = True
+    compile_timeout: float = 600.0
     offset_free: float = 0.0
     offset_free_rate: float = 0.0
     sensitivities: str = "exact"
@@ -93,7 +97,7 @@ class MPCConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 1:
                 raise UserError(f"{name}: expected an integer >= 1, got {v!r}")
-        for name in ("dt", "tol"):
+        for name in ("dt", "tol", "compile_timeout"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
                 raise UserError(f"{name}: expected a finite number > 0, got {v!r}")

@@ -20,6 +20,7 @@ import numpy as np
 
 from softpinn.actuator import Actuator
 from softpinn.bridge.control.actuation import actuated_ode, lagged_inputs, settled
+from softpinn.bridge.control.failures import count_causes
 from softpinn.errors import UserError
 
 __all__ = ["plant", "closed_loop", "metrics", "outside_data"]
@@ -53,7 +54,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
 
     ``reference`` has shape (steps + horizon, ny): r_k for k = 1 ... steps + horizon (r_k is
     the output wanted at time k dt). Returns ``x`` (K + 1, 2n), ``y`` (K + 1, ny), ``u``
-    (K, m), ``r`` (K + 1, ny) (r_0 repeats r_1), ``success``, ``status``, ``seconds``,
+    (K, m), ``r`` (K + 1, ny) (r_0 repeats r_1), ``success``, ``status``, ``cause`` (a failed
+    solve's, :mod:`.failures`; None where it succeeded), ``seconds``,
     ``iterations``, ``exact_iterations`` (a frozen-sensitivity SQP's iterations redone with
     the exact ones; 0 otherwise), ``lifted_iterations`` (steps taken about the last plan's
     states, sensitivities "lifted") and ``cost`` per step, and ``diverged`` (the plant failed or
@@ -92,6 +94,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     arms = []
     delay = int(getattr(controller, "delay", 0))
     xs, us, ok, status, secs, its, costs, exact, lifted = [x], [], [], [], [], [], [], [], []
+    causes = []  # a failed solve's cause (failures.CAUSES), None where it succeeded
     diverged = False
     if at_rest is None:  # watch the arm for one step before the loop starts
         at_rest = False
@@ -117,6 +120,7 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
         us.append(u)
         ok.append(bool(info["success"]))
         status.append(str(info.get("status")))
+        causes.append(None if info["success"] else info.get("cause", "other"))
         secs.append(info["seconds"])
         its.append(info["iterations"])
         exact.append(info.get("exact_iterations", 0))
@@ -135,7 +139,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
     r = np.concatenate([reference[:1], reference[: len(xs) - 1]])
     extra = {} if ident else {"u_arm": np.array(arms).reshape(-1, m)}
     return {**extra, "x": xs, "y": ys, "u": np.array(us).reshape(-1, m), "r": r,
-            "success": np.array(ok, bool), "status": status, "seconds": np.array(secs),
+            "success": np.array(ok, bool), "status": status, "cause": causes,
+            "seconds": np.array(secs),
             "iterations": np.array(its, int), "exact_iterations": np.array(exact, int),
             "lifted_iterations": np.array(lifted, int),
             "cost": np.array(costs, float),
@@ -144,7 +149,8 @@ def closed_loop(controller, plant_fn: ca.Function, x0, reference: np.ndarray, st
 
 def metrics(result: dict) -> dict:
     """Tracking error ‖y - r‖ (RMS and max over steps 1 ..., in the units of y), input effort
-    (RMS of u and of its change per step), failures, steps, divergence, whether the loop
+    (RMS of u and of its change per step), failures (and how many of each cause and solver
+    status), steps, divergence, whether the loop
     started at rest, iterations (and how many a frozen-sensitivity SQP redid with exact
     sensitivities), solve times (ms)."""
     e = np.linalg.norm(result["y"][1:] - result["r"][1:], axis=1)
@@ -162,6 +168,10 @@ def metrics(result: dict) -> dict:
         "effort_rms": stat(lambda a: np.sqrt(np.mean(a**2)), u, 0.0),
         "effort_rate_rms": stat(lambda a: np.sqrt(np.mean(a**2)), du, 0.0),
         "failures": int(np.sum(~np.asarray(result["success"], bool))),
+        # per cause (infeasible, iteration limit, numerical, other), and the solvers' statuses
+        "failure_causes": count_causes(result["success"], result.get("cause")
+                                       or [None] * len(result["success"])),
+        "failure_statuses": _failed_statuses(result),
         "steps": int(len(result["success"])),
         "diverged": bool(result.get("diverged", False)),
         "at_rest": bool(result.get("at_rest", False)),
@@ -173,6 +183,15 @@ def metrics(result: dict) -> dict:
         "solve_ms_p95": stat(lambda a: np.percentile(a, 95), s),
         "solve_ms_max": stat(np.max, s),
     }
+
+
+def _failed_statuses(result: dict) -> dict[str, int]:
+    """{solver status: failed solves}."""
+    got: dict[str, int] = {}
+    for ok, st in zip(result["success"], result.get("status", ()), strict=False):
+        if not ok:
+            got[str(st)] = got.get(str(st), 0) + 1
+    return got
 
 
 def outside_data(x: np.ndarray, q_range: dict, dt: float, names=None,

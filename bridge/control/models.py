@@ -230,9 +230,12 @@ def _check_sizes(path, directory: Path, output: ca.Function) -> None:
 
 def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
              member: int | None = None, mean: bool = False, force: bool = True,
-             compiler=None) -> PredictionModel:
+             compiler=None, compile: bool = True, compile_timeout: float = 600.0,
+             log=None) -> PredictionModel:
     """A trained run (or an export directory) as a prediction model; a run is exported to
-    ``export_dir`` first (:func:`softpinn.bridge.export.export_run`)."""
+    ``export_dir`` first (:func:`softpinn.bridge.export.export_run`; ``compile``: build its
+    model.so, which the prediction model does not use: it runs the ``.casadi`` Functions;
+    ``compile_timeout``: the compiler's limit in seconds; ``log``: told each stage)."""
     directory, what = resolve_run(path)
     if what == "run":
         _check_sizes(path, directory, output)
@@ -241,7 +244,7 @@ def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
 
         t0 = time.perf_counter()
         export_run(directory, export_dir, member=member, mean=mean, force=force,
-                   compiler=compiler)
+                   compiler=compiler, compile=compile, compile_timeout=compile_timeout, log=log)
         seconds = time.perf_counter() - t0
         directory = Path(export_dir)
     elif member is not None or mean:

@@ -44,11 +44,12 @@ import numpy as np
 
 from softpinn.bridge.control.actuation import delay_steps, lagged_inputs, settled
 from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
+from softpinn.bridge.control.failures import cause
 from softpinn.bridge.control.gauss_newton import sqp_functions
 from softpinn.bridge.control.models import PredictionModel
-from softpinn.bridge.control.rk4 import _sym, rk4_map
+from softpinn.bridge.control.rk4 import _sym, rk4_map, stiff_substeps
 from softpinn.errors import UserError
-from softpinn.symbolic import DEFAULT_FLAGS, compile_functions
+from softpinn.symbolic import DEFAULT_FLAGS, CompilerTimeout, compile_functions
 
 __all__ = ["MPCConfig", "MPC", "rk4_map", "SOLVERS", "QP_SOLVERS", "SENSITIVITIES",
            "input_bounds"]
@@ -87,26 +88,6 @@ def input_bounds(config: MPCConfig, m: int) -> tuple[np.ndarray, np.ndarray]:
     return lb, ub
 
 
-def _substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int:
-    """``config.substeps``, raised until h ρ <= ``config.stiffness`` for the spectral radius ρ
-    of ∂f/∂x at the operating point (at most 64 sub-steps)."""
-    if operating_point is None or config.stiffness == 0:
-        return config.substeps
-    q, qd, u = (np.asarray(v, float).ravel() for v in operating_point)
-    x0 = np.concatenate([np.asarray(model.to_state(q, qd), float).ravel(),
-                         settled(model.actuator, model.m, u)])
-    sym = _sym(model.field)
-    xs, us = sym.sym("x", model.nx), sym.sym("u", model.m)
-    jac = ca.Function("stiffness", [xs, us], [ca.jacobian(model.field(xs, us), xs)])
-    J = np.asarray(jac(x0, u))
-    if not np.all(np.isfinite(J)):
-        raise UserError(f"prediction model {model.name}: its Jacobian at the operating point "
-                        "is not finite")
-    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
-    need = int(np.ceil(config.dt * rho / config.stiffness))
-    return int(min(max(config.substeps, need), 64))
-
-
 class MPC:
     """One controller: ``solve(q, qd, reference, u_prev) -> (u, info)``.
 
@@ -121,7 +102,7 @@ class MPC:
                  operating_point=None, compiler=None, cache=None):
         self.model = model
         config = MPCConfig() if config is None else config
-        self.substeps = _substeps(model, config, operating_point)
+        self.substeps = stiff_substeps(model, config, operating_point)
         if self.substeps != config.substeps:
             config = dataclasses.replace(config, substeps=self.substeps)
         self.config = config
@@ -159,8 +140,14 @@ class MPC:
             # (SX code: straight-line, the same speed at -O1, which compiles faster)
             flags = (("-O3", "-fPIC", "-shared") if mod.field.is_a("MXFunction")
                      else DEFAULT_FLAGS)
-            built = compile_functions(fns, compiler=compiler, directory=cache, enable_fd=False,
-                                      flags=flags)
+            try:
+                built = compile_functions(fns, compiler=compiler, directory=cache,
+                                          enable_fd=False, flags=flags,
+                                          timeout=cfg.compile_timeout)
+            except CompilerTimeout as exc:
+                raise exc.advised(f"the solver of {mod.name}: raise the limit with "
+                                  "--compile-timeout S, or run without C with --no-codegen "
+                                  "(CasADi's virtual machine, slower solves)") from None
             fns, self.compiled = built.functions, built.compiled
             self.compile_info = {"compiled": built.compiled, "from_cache": built.from_cache,
                                  "compile_seconds": built.compile_seconds,
@@ -174,6 +161,7 @@ class MPC:
         self._qp = ca.conic("mpc_qp", cfg.qpsol,
                             {"h": ca.Sparsity.dense(N * m, N * m), "a": ca.Sparsity(0, N * m)},
                             opts)
+        self._qp_status = (None, None)  # the last QP's return statuses
         self._bounded = bool(np.any(np.isfinite(self._lbu)) or np.any(np.isfinite(self._ubu)))
 
     def _qp_step(self, H, g, Uv):
@@ -189,7 +177,10 @@ class MPC:
             return d, True
         sol = self._qp(h=H, g=g, lbx=lb, ubx=ub)
         d = np.asarray(sol["x"]).ravel()
-        ok = bool(self._qp.stats().get("success", False)) and bool(np.all(np.isfinite(d)))
+        stats = self._qp.stats()
+        ok = bool(stats.get("success", False)) and bool(np.all(np.isfinite(d)))
+        # why it failed, for the failed solve's cause (failures.cause)
+        self._qp_status = (stats.get("return_status"), stats.get("unified_return_status"))
         if ok:  # a solver may report success off the box (qrqp does, on ill-conditioned H);
             # daqp stops within its feasibility tolerance, up to ~1e-5 outside on task 5's
             # steps (H's condition 2e7): a miss of a thousandth of the box's width is clipped
@@ -211,7 +202,8 @@ class MPC:
             return U, f, "non-finite prediction"
         d, qp_ok = self._qp_step(H, g, U.ravel(order="F"))
         if not qp_ok:
-            return U, f, "QP failed"
+            qp_status, self._unified = self._qp_status
+            return U, f, "QP failed" + ("" if qp_status is None else f" ({qp_status})")
         D = d.reshape(m, N, order="F")
         slope = float(g @ d)
         if slope > -1e-14 * max(1.0, abs(f)):  # no descent left: converged
@@ -240,6 +232,7 @@ class MPC:
         U = self._guess(u_prev)
         U = np.clip(U, self._lbu[:, None], self._ubu[:, None])
         status, ok, it, f, exact, lifted = "max_iter", True, 0, np.nan, 0, 0
+        self._unified = None
         X, self._X = (self._X if self._U is not None else None), None
         for it in range(1, cfg.max_iter + 1):  # noqa: B007 - the count is reported
             why = "no plan"
@@ -264,7 +257,8 @@ class MPC:
                 status, ok = why, why == "converged"
                 break
         self._U = U if ok else None
-        info = {"success": ok, "status": status, "iterations": it, "cost": f}
+        info = {"success": ok, "status": status, "iterations": it, "cost": f,
+                "unified": self._unified}
         if self._gn_exact is not None:
             info["exact_iterations"] = exact
         if self._gn_lifted is not None:
@@ -354,6 +348,7 @@ class MPC:
             self._w = self._lam = None
         u = w[nx * (N + 1): nx * (N + 1) + m] if np.all(np.isfinite(w)) else u_prev
         return np.asarray(u, float), {"success": ok, "status": stats.get("return_status"),
+                                      "unified": stats.get("unified_return_status"),
                                       "iterations": int(stats.get("iter_count", -1)),
                                       "cost": float(sol["f"])}
 
@@ -433,7 +428,10 @@ class MPC:
         else:
             u, info = self._solve_ipopt(start, R.T, u_prev)
         if not np.all(np.isfinite(u)):
-            u, info["success"] = u_prev.copy(), False
+            u, info["success"], info["status"] = u_prev.copy(), False, "non-finite input"
+        unified = info.pop("unified", None)
+        if not info["success"]:  # infeasible, iteration limit, numerical (failures.cause)
+            info["cause"] = cause(info["status"], unified)
         arriving = u if arriving is None else arriving
         if gain > 0:  # what the model expects the state to be after this step
             self._x_next = np.asarray(self._step(x0, arriving)).ravel() + self._d

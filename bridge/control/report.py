@@ -1,4 +1,6 @@
-"""``report.md`` of a control comparison: the setting, one table per reference, the figures."""
+"""``report.md`` of a control comparison: the setting, one table per reference, the figures;
+the controllers that failed (each with its error in one line), the causes of failed solves and
+what a failed solve applies instead (issue 46)."""
 
 from __future__ import annotations
 
@@ -30,6 +32,33 @@ def _outside_lines(per: dict) -> list[str]:
             f"trained on (some q beyond its training trajectories' range by more than "
             f"{100 * margin:g} % of that range), where its predictions are not backed by data: "
             + "; ".join(left) + ".", ""]
+
+
+def _failure_lines(result: dict) -> list[str]:
+    """The run's end (interrupted), the controllers that failed, the failed solves' causes."""
+    lines = []
+    if result.get("interrupted"):
+        lines += ["**Interrupted** (Ctrl-C): only the controllers and references that finished "
+                  "are below; no figures were drawn.", ""]
+    for name, f in (result.get("failed") or {}).items():
+        where = "building its MPC" if f["stage"] == "build" else f"on the {f['stage']} reference"
+        lines.append(f"**{name} failed** {where}: {f['error']}" + (
+            " (its traceback: results.json, failed)" if f.get("traceback") else ""))
+    if result.get("failed"):
+        lines.append("")
+    failed = [(r, n, m) for r, per in result["results"].items() for n, m in per.items()
+              if m.get("failures")]
+    if failed:
+        lines += ["**Failed solves** by cause (infeasible, iteration limit, numerical: "
+                  "results.json's failure_causes; the solvers' statuses: failure_statuses): "
+                  + "; ".join(f"{n} on {r}: " + ", ".join(
+                      f"{k} {c}" for c, k in (m.get("failure_causes") or {}).items())
+                      for r, n, m in failed) + ". " + _sentence(result.get("fallback")), ""]
+    return lines
+
+
+def _sentence(text) -> str:
+    return "" if not text else text[0].upper() + text[1:] + "."
 
 
 def write_report(path, result: dict, figures: list[str]) -> Path:
@@ -83,6 +112,7 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         + f". CasADi {result['casadi']}, softpinn {result['softpinn']}. Wall time "
         f"{result['seconds']:.1f} s.",
         "",
+        *_failure_lines(result),
         "## Controllers",
         "",
         "| controller | source | RK4 sub-steps | compiled C | build [s] |",
@@ -117,6 +147,7 @@ def write_report(path, result: dict, figures: list[str]) -> Path:
         ]
         for name, m in per.items():
             fail = f"{m['failures']}/{m['steps']}" + (" diverged" if m["diverged"] else "")
+            fail += "".join(f", {k} {c}" for c, k in (m.get("failure_causes") or {}).items())
             its = _num(m["iterations_mean"], ".2g") + (
                 f" ({m['exact_iterations']} exact)" if cfg.get("sensitivities") == "frozen"
                 else f" ({m['lifted_iterations']} lifted, {m['exact_iterations']} exact)"

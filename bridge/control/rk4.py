@@ -3,7 +3,8 @@
 :func:`rk4_map` is the step itself; :func:`_stage_functions` gives one control step with its
 ∂x⁺/∂x, ∂x⁺/∂u, exact (RK4's variational equations) or frozen (one Jacobian per step, RK4's
 sensitivities of that linearisation in closed form, :func:`_frozen_sensitivities`); the
-controller that uses them is :mod:`.mpc`.
+controller that uses them is :mod:`.mpc`. :func:`stiff_substeps`: how many sub-steps a stiff
+model needs.
 """
 
 from __future__ import annotations
@@ -11,7 +12,12 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-__all__ = ["rk4_map"]
+from softpinn.bridge.control.actuation import settled
+from softpinn.bridge.control.config import MPCConfig
+from softpinn.bridge.control.models import PredictionModel
+from softpinn.errors import UserError
+
+__all__ = ["rk4_map", "stiff_substeps"]
 
 
 def _sym(fn: ca.Function):
@@ -120,3 +126,23 @@ def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool 
         S = S + (h / 6.0) * (d1 + 2.0 * (d2 + d3) + d4)
     stage = ca.Function("mpc_stage", [x, u], [y, S[:, :nx], S[:, nx:]])
     return stage, roll
+
+
+def stiff_substeps(model: PredictionModel, config: MPCConfig, operating_point) -> int:
+    """``config.substeps``, raised until h ρ <= ``config.stiffness`` for the spectral radius ρ
+    of ∂f/∂x at the operating point (at most 64 sub-steps)."""
+    if operating_point is None or config.stiffness == 0:
+        return config.substeps
+    q, qd, u = (np.asarray(v, float).ravel() for v in operating_point)
+    x0 = np.concatenate([np.asarray(model.to_state(q, qd), float).ravel(),
+                         settled(model.actuator, model.m, u)])
+    sym = _sym(model.field)
+    xs, us = sym.sym("x", model.nx), sym.sym("u", model.m)
+    jac = ca.Function("stiffness", [xs, us], [ca.jacobian(model.field(xs, us), xs)])
+    J = np.asarray(jac(x0, u))
+    if not np.all(np.isfinite(J)):
+        raise UserError(f"prediction model {model.name}: its Jacobian at the operating point "
+                        "is not finite")
+    rho = float(np.max(np.abs(np.linalg.eigvals(J))))
+    need = int(np.ceil(config.dt * rho / config.stiffness))
+    return int(min(max(config.substeps, need), 64))

@@ -8,6 +8,7 @@ Functions, generated C and metadata (``softpinn export``).
 
 from softpinn.bridge.export.dynamics import export_functions
 from softpinn.bridge.export.params import model_params
-from softpinn.bridge.export.writer import ExportResult, export_run, load_exported
+from softpinn.bridge.export.writer import ExportResult, check_timeout, export_run, load_exported
 
-__all__ = ["ExportResult", "export_functions", "export_run", "load_exported", "model_params"]
+__all__ = ["ExportResult", "check_timeout", "export_functions", "export_run", "load_exported",
+           "model_params"]

@@ -1,6 +1,9 @@
 """``export_run``: a trained run directory -> CasADi Functions, generated C and metadata on disk.
 
-The output directory holds
+The C compile runs before anything is written to the output directory: one that runs past
+``compile_timeout`` (default 600 s) or fails leaves the directory as it was; C over
+``LARGE_SOURCE_MB`` compiles at -O0 (several times faster to build, slower to run). The output
+directory holds
 
 * ``model.casadi`` (the Function ``qdd`` with inputs ``q``, ``qd``, ``u``) and one
   ``<name>.casadi`` per Function (``qdd``, ``field``, ``step``, and for physics models ``M``,
@@ -8,7 +11,8 @@ The output directory holds
 * ``model.c`` and ``model.h``: the same Functions as C (CasADi's code generator, one C function
   per name with the usual ``<name>_work``/``<name>_n_in``... companions), and ``model.so``, that C
   compiled through the project's code cache (:func:`softpinn.symbolic.compile_functions`; absent
-  without a C compiler);
+  without a C compiler or with ``compile=False``: the ``.casadi`` Functions need no library, they
+  run in CasADi's virtual machine, and ``softpinn control`` compiles its own solver from them);
 * ``model.json``: kind, sizes, state and coordinate names, units, the training data and
   configuration, the integrator of ``step``, the run's actuator (``actuator``: numbers, text
   and what to feed the model), a checksum of the run's files, the versions, and ``sha256``:
@@ -22,6 +26,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -38,7 +43,7 @@ from softpinn.bridge.export.params import model_params
 from softpinn.bridge.export.verify import CHECKSUMS, file_checksums, read_export
 from softpinn.errors import UserError
 from softpinn.learn import load_run, run_actuator
-from softpinn.symbolic import compile_functions
+from softpinn.symbolic import DEFAULT_FLAGS, DEFAULT_TIMEOUT, CompilerTimeout, compile_functions
 
 __all__ = ["export_run", "ExportResult", "FORMAT", "FORMAT_VERSION", "load_exported"]
 
@@ -167,37 +172,78 @@ def _names(n: int, m: int, kind: str, state_kind: str, meta: dict | None) -> dic
     }
 
 
-def _write_c(fns: dict, out: Path, compiler, log=lambda text: None) -> dict:
-    """model.c + model.h (CasADi code generator) and model.so from the project's code cache."""
+#: what an export's compile timeout advises (a network has no quadrature nodes to reduce)
+TIMEOUT_ADVICE = ("raise the limit with --compile-timeout S, or export with --no-compile (the "
+                  "Functions and model.c, no library: they run in CasADi's virtual machine, "
+                  "control compiles its own solver from them)")
+
+
+#: C larger than this (MB) compiles at -O0: for a 4-coordinate Lagrangian network (8.7 MB of C,
+#: 2 loaded cores) gcc took 20 s at -O0 and 174 s at -O1, and its q̈ ran 5x slower (0.53 ms
+#: against 0.10 ms); ``softpinn control`` never calls the library (it compiles its own solver)
+LARGE_SOURCE_MB = 4.0
+LARGE_SOURCE_FLAGS = ("-O0", "-fPIC", "-shared")
+
+
+def check_timeout(value, flag: str = "--compile-timeout") -> float:
+    """``value`` as a number of seconds > 0, else one line naming ``flag``."""
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError):
+        seconds = math.nan
+    if isinstance(value, bool) or not (math.isfinite(seconds) and seconds > 0):
+        raise UserError(f"{flag}: expected a number of seconds > 0, got {value!r}")
+    return seconds
+
+
+def _write_c(fns: dict, work: Path, compiler, *, compile: bool = True,
+             timeout: float = DEFAULT_TIMEOUT, log=lambda text: None) -> tuple[dict, Path | None]:
+    """model.c + model.h (CasADi code generator) in ``work`` and, with ``compile``, the library
+    from the project's code cache: (the ``c`` block of model.json, the library's path or None).
+    A compile past ``timeout`` is a one-line :class:`CompilerTimeout` advising the flags."""
 
     cg = ca.CodeGenerator("model.c", {"with_header": True, "casadi_real": "double"})
     for key in sorted(fns):
         cg.add(fns[key])
-    cg.generate(str(out) + os.sep)
-    size = sum(p.stat().st_size for p in out.glob("*.c")) / 1e6
-    log(f"compiling {size:.1f} MB of C (a minute or more for a large network; the library is "
-        "cached for the next export of the same model)")
-    built = compile_functions(fns, compiler=compiler)
+    cg.generate(str(work) + os.sep)
+    built = None
+    size = (work / "model.c").stat().st_size / 1e6
+    if compile:
+        large = size > LARGE_SOURCE_MB
+        flags = LARGE_SOURCE_FLAGS if large else DEFAULT_FLAGS
+        log(f"compiling {size:.1f} MB of C"
+            + (" at -O0 (a large source: -O1 compiles about 9x slower, its library runs "
+               "about 5x faster; compile model.c yourself for that)" if large else "")
+            + f" (a minute or more for a large network, at most {timeout:g} s; the library "
+              "is cached for the next export of the same model)")
+        try:
+            built = compile_functions(fns, compiler=compiler, timeout=timeout, flags=flags)
+        except CompilerTimeout:  # the build folder it names is gone: say what it compiled
+            raise CompilerTimeout(f"the C compiler ran past its timeout of {timeout:g} s on "
+                                  f"the export's {size:.1f} MB of C", TIMEOUT_ADVICE,
+                                  timeout=timeout) from None
     library = None
-    if built.compiled and built.library is not None:
-        shutil.copyfile(built.library, out / "model.so")
+    if built is not None and built.compiled and built.library is not None:
         library = "model.so"
     return {
         "source": "model.c",
         "header": "model.h",
         "library": library,
-        "cache_key": built.key or None,
-        "from_cache": built.from_cache,
-        "compiler": built.compiler,
-        "flags": list(built.flags),
+        "cache_key": (built.key or None) if built else None,
+        "from_cache": built.from_cache if built else False,
+        "compiler": built.compiler if built else None,
+        "flags": list(built.flags) if built else [],
         "symbols": sorted(f.name() for f in fns.values()),
         "calling": "CasADi generated-code API: <name>(arg, res, iw, w, mem) with work sizes from "
                    "<name>_work(&sz_arg, &sz_res, &sz_iw, &sz_w); see model.h",
-    }
+        **({} if compile else {"note": "exported with --no-compile: no library; compile model.c "
+                                       "yourself (gcc -O1 -fPIC -shared model.c -o model.so -lm)"}),
+    }, (built.library if library else None)
 
 
 def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = False,
-               force: bool = False, compiler=None, log=None) -> ExportResult:
+               force: bool = False, compiler=None, log=None, compile: bool = True,
+               compile_timeout: float = DEFAULT_TIMEOUT) -> ExportResult:
     """Export a trained run (one member, the best member, or the ensemble mean) to ``out_dir``.
 
     ``member``: the seed of an ensemble member (default: the best member, as ``load_run``);
@@ -205,9 +251,12 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     ``out_dir``. ``compiler``: the C compiler (default: ``$CC``, gcc, cc). Returns the metadata
     written to ``model.json`` (with the symbolic Functions on ``.functions``). ``log(text)``:
     told each stage as it starts (the C compile of a large network takes a minute or more).
+    ``compile``: build model.so (False: the Functions, model.c and model.h only);
+    ``compile_timeout``: the compiler's limit in seconds (past it: one line, nothing written).
     """
 
     log = log or (lambda text: None)
+    compile_timeout = check_timeout(compile_timeout)
 
     run, out = Path(run_dir), Path(out_dir)
     info = _run_info(run)
@@ -220,12 +269,19 @@ def export_run(run_dir, out_dir, *, member: int | None = None, mean: bool = Fals
     fns = export_functions(params, substeps=train_cfg.substeps, input_hold=train_cfg.input_hold)
     act = run_actuator(getattr(train_cfg, "actuator", "auto"), params[0]["m"])
     fns.update(actuator_functions(act, params[0]["m"]))
-    _prepare_out(out, force)
-    log(f"writing the Functions and model.c to {out}")
-    fns["qdd"].save(str(out / "model.casadi"))
-    for key, fn in fns.items():
-        fn.save(str(out / f"{key}.casadi"))
-    c_info = _write_c(fns, out, compiler, log)
+    with tempfile.TemporaryDirectory(prefix="softpinn-export-") as work:
+        # the C is generated and compiled before --out is touched: a timeout leaves it as it was
+        c_info, library = _write_c(fns, Path(work), compiler, compile=compile,
+                                   timeout=compile_timeout, log=log)
+        _prepare_out(out, force)
+        log(f"writing the Functions and model.c to {out}")
+        fns["qdd"].save(str(out / "model.casadi"))
+        for key, fn in fns.items():
+            fn.save(str(out / f"{key}.casadi"))
+        for name in ("model.c", "model.h"):
+            shutil.copyfile(Path(work) / name, out / name)
+        if library is not None:
+            shutil.copyfile(library, out / "model.so")
 
     first = params[0]
     n, m = first["n"], first["m"]

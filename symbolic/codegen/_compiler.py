@@ -27,6 +27,8 @@ from softpinn.symbolic import _outputs as outputs
 #: Compiler flags: -O1 compiles 1.5-6x faster than -O2 and runs as fast (docs/pitfalls.md).
 DEFAULT_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 DEFAULT_TIMEOUT = 600.0
+#: what a timeout's message advises by default: a true model's C grows with its quadrature
+QUADRATURE_ADVICE = "raise the timeout or use fewer quadrature nodes"
 
 
 class CompilerError(UserError):
@@ -34,7 +36,20 @@ class CompilerError(UserError):
 
 
 class CompilerTimeout(CompilerError):
-    """The C compiler ran past its timeout (and was killed)."""
+    """The C compiler ran past its timeout (and was killed).
+
+    ``head``: what ran past which limit; ``timeout``: the limit in seconds. The message is the
+    head and advice; :meth:`advised` gives the same error with the caller's advice (a learned
+    network's export has no quadrature nodes to reduce).
+    """
+
+    def __init__(self, head: str, advice: str = QUADRATURE_ADVICE, *, timeout: float = 0.0):
+        super().__init__(f"{head}; {advice}")
+        self.head, self.advice, self.timeout = head, advice, timeout
+
+    def advised(self, advice: str) -> CompilerTimeout:
+        """This timeout with ``advice`` in place of its own."""
+        return CompilerTimeout(self.head, advice, timeout=self.timeout)
 
 
 def find_compiler(compiler: str | os.PathLike | None = None) -> str | None:
@@ -92,8 +107,8 @@ def compile_c(
         except subprocess.TimeoutExpired:
             _kill_group(proc)
             raise CompilerTimeout(
-                f"C compiler {compiler} ran past its timeout of {timeout:g} s on {source}; "
-                "raise the timeout or use fewer quadrature nodes"
+                f"C compiler {compiler} ran past its timeout of {timeout:g} s on {source}",
+                timeout=timeout,
             ) from None
         except BaseException:  # KeyboardInterrupt, SystemExit, ...: the compiler goes too
             _kill_group(proc)
