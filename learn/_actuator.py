@@ -73,7 +73,11 @@ def resolve_actuator(value: str, data: Dataset, train_ids) -> tuple[Actuator, st
         if meta:
             value = "data"
         elif data.meta.get("source") == "import":
-            value = "identify"
+            try:  # the default: data too short to identify from train without one, and say so
+                return resolve_actuator("identify", data, train_ids)
+            except UserError as exc:
+                return Actuator(source="none"), (f"actuator: none ({exc}; --actuator auto "
+                                                 "goes on without one)")
         else:
             return Actuator(source="none"), None
     if value == "data":

@@ -242,3 +242,12 @@ def test_inputs_far_from_unit_scale_are_warned(tmp_path):
     pascal = _save(tmp_path / "pa.npz", {**arrays, "u": arrays["u"] * 1e5}, {})
     (message,) = scale_warnings(pascal)
     assert message.startswith("the data's inputs u have rms") and "rescale" in message
+
+
+def test_auto_goes_on_without_one_where_the_recordings_are_too_short(tmp_path):
+    short = _save(tmp_path / "short.npz", _record(None, trajectories=3, duration=1.5),
+                  {"source": "import"})
+    with pytest.raises(UserError, match="shorter than 2 s"):
+        resolve_actuator("identify", short, [0, 1])
+    act, note = resolve_actuator("auto", short, [0, 1])
+    assert act.is_identity and "goes on without one" in note
