@@ -29,7 +29,15 @@ dampers = [0.3, 0.0]
 actuation = [[0.0], [1.0]]
 """
 
-needs_cc = pytest.mark.skipif(find_compiler() is None, reason="no C compiler")
+
+@pytest.fixture
+def cc():
+    """A test that compiles: the test machine has a C compiler (as tests/test_export.py
+    asserts), so its absence fails the test instead of skipping it."""
+    assert find_compiler() is not None, "the test machine has a C compiler"
+
+
+needs_cc = pytest.mark.usefixtures("cc")
 
 
 @pytest.fixture(autouse=True)
