@@ -14,6 +14,19 @@ from pathlib import Path
 import numpy as np
 
 MSD = {"m": (1.0, 1.8), "k": (2.1, 4.6), "b": 0.3}
+#: the same chain as a softpinn spec, with a force on the second mass: runs trained on
+#: :func:`make_dataset`'s "msd" data are models of it (the control and export tests)
+MSD_SPEC = """
+name = "test-msd"
+kind = "mass-spring-damper"
+masses = [1.0, 1.8]
+springs = [2.1, 4.6]
+dampers = [0.3, 0.0]
+actuation = [[0.0], [1.0]]
+"""
+#: the same chain with a force on each mass (fully actuated: every output target reachable)
+MSD_SPEC_FULL = MSD_SPEC.replace("test-msd", "msd-full").replace("[[0.0], [1.0]]",
+                                                                 '"generalized"')
 
 
 def msd_matrices(*, forced: bool = True):

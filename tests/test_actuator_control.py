@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from datagen import make_dataset, tiny_model_config
+from datagen import MSD_SPEC, MSD_SPEC_FULL, make_dataset, tiny_model_config
 
 from softpinn.actuator import Actuator
 from softpinn.bridge.control import (
@@ -28,17 +28,6 @@ from softpinn.errors import UserError
 from softpinn.learn import TrainConfig, train
 from softpinn.symbolic import TrueModel
 
-FORCED = """
-name = "test-msd"
-kind = "mass-spring-damper"
-masses = [1.0, 1.8]
-springs = [2.1, 4.6]
-dampers = [0.3, 0.0]
-actuation = [[0.0], [1.0]]
-"""
-#: the same chain with a force on each mass (fully actuated: every output target reachable)
-FULL = FORCED.replace("test-msd", "msd-full").replace("[[0.0], [1.0]]", '"generalized"')
-
 
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path_factory, monkeypatch):
@@ -48,14 +37,14 @@ def _private_cache(tmp_path_factory, monkeypatch):
 @pytest.fixture(scope="module")
 def spec(tmp_path_factory):
     path = tmp_path_factory.mktemp("spec") / "forced.toml"
-    path.write_text(FORCED)
+    path.write_text(MSD_SPEC)
     return str(path)
 
 
 @pytest.fixture(scope="module")
 def full(tmp_path_factory):
     path = tmp_path_factory.mktemp("spec") / "full.toml"
-    path.write_text(FULL)
+    path.write_text(MSD_SPEC_FULL)
     return str(path)
 
 

@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 import pytest
-from datagen import make_dataset, tiny_model_config
+from datagen import MSD_SPEC, make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import MPC, MPCConfig, from_run, from_true, tip_output
@@ -18,16 +18,6 @@ from softpinn.bridge.export import export_run, load_exported
 from softpinn.errors import UserError
 from softpinn.symbolic import CompilerTimeout, TrueModel, find_compiler, load_spec
 from softpinn.symbolic.codegen import _codegen
-
-#: the chain tests/datagen.py simulates, with a force on the second mass (as tests/test_control)
-FORCED = """
-name = "test-msd"
-kind = "mass-spring-damper"
-masses = [1.0, 1.8]
-springs = [2.1, 4.6]
-dampers = [0.3, 0.0]
-actuation = [[0.0], [1.0]]
-"""
 
 
 @pytest.fixture
@@ -62,7 +52,7 @@ def run(tmp_path_factory):
 @pytest.fixture(scope="module")
 def spec_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("specs") / "forced.toml"
-    path.write_text(FORCED)
+    path.write_text(MSD_SPEC)
     return str(path)
 
 

@@ -11,7 +11,7 @@ import os
 
 import numpy as np
 import pytest
-from datagen import make_dataset, tiny_model_config
+from datagen import MSD_SPEC, MSD_SPEC_FULL, make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import (
@@ -33,19 +33,6 @@ from softpinn.bridge.control.models import PredictionModel
 from softpinn.errors import UserError
 from softpinn.symbolic import TrueModel
 
-#: the two-mass chain of task 1 with a force on the second mass: the system tests/datagen.py
-#: simulates, so runs trained on its data are models of this spec
-FORCED = """
-name = "test-msd"
-kind = "mass-spring-damper"
-masses = [1.0, 1.8]
-springs = [2.1, 4.6]
-dampers = [0.3, 0.0]
-actuation = [[0.0], [1.0]]
-"""
-#: the same chain with a force on each mass (fully actuated)
-FULL = FORCED.replace("test-msd", "msd-full").replace("[[0.0], [1.0]]", '"generalized"')
-
 
 @pytest.fixture(autouse=True)
 def _private_cache(tmp_path_factory, monkeypatch):
@@ -56,8 +43,8 @@ def _private_cache(tmp_path_factory, monkeypatch):
 @pytest.fixture(scope="module")
 def specs(tmp_path_factory):
     root = tmp_path_factory.mktemp("specs")
-    (root / "forced.toml").write_text(FORCED)
-    (root / "full.toml").write_text(FULL)
+    (root / "forced.toml").write_text(MSD_SPEC)
+    (root / "full.toml").write_text(MSD_SPEC_FULL)
     return {"forced": str(root / "forced.toml"), "full": str(root / "full.toml")}
 
 
@@ -133,7 +120,7 @@ def test_offset_free_mpc_removes_a_wrong_models_offset(specs, tmp_path, solver):
     springs to pull harder); the output-disturbance estimate measures that offset and removes
     it, and with the true model it stays ~0."""
     wrong = tmp_path / "stiff.toml"
-    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    wrong.write_text(MSD_SPEC_FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
     tm = TrueModel(specs["full"])
     out = tip_output(tm.spec)
     q_star, _ = equilibrium(tm, [0.3, -0.2])
@@ -159,7 +146,7 @@ def test_the_disturbance_rate_follows_a_wrong_models_drifting_error(specs, tmp_p
     drifts; a constant estimate lags it, the alpha-beta filter (offset_free_rate) estimates its
     change per step too and tracks more than twice as close once both have settled."""
     wrong = tmp_path / "stiff.toml"
-    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    wrong.write_text(MSD_SPEC_FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
     tm = TrueModel(specs["full"])
     out = tip_output(tm.spec)
     steps, cfgs, late = 120, {}, {}
@@ -190,7 +177,7 @@ def test_a_rest_start_gives_the_estimate_the_models_miss_at_once(specs, tmp_path
     the estimate has learnt the offset; started from the model's miss at that rest state
     (closed_loop sees the arm still: at_rest), the arm does not move at all."""
     wrong = tmp_path / "stiff.toml"
-    wrong.write_text(FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
+    wrong.write_text(MSD_SPEC_FULL.replace("springs = [2.1, 4.6]", "springs = [2.73, 5.98]"))
     tm = TrueModel(specs["full"])
     out = tip_output(tm.spec)
     q_star, u_star = equilibrium(tm, [0.3, -0.2])
@@ -412,7 +399,7 @@ def test_default_input_bounds_cover_the_inputs_simulate_draws(tmp_path):
     from softpinn.symbolic import make_dataset as simulate_data
 
     path = tmp_path / "arm.toml"
-    path.write_text(FULL + """
+    path.write_text(MSD_SPEC_FULL + """
 [data]
 signal = "multisine"
 components = 3
@@ -432,7 +419,7 @@ rate = 50.0
     assert np.all(lo <= u.min(axis=0) - 0.2 * width) and np.all(hi >= u.max(axis=0) + 0.2 * width)
     # no input that moves: no bounds
     still = tmp_path / "still.toml"
-    still.write_text(FULL.replace("msd-full", "still") + '[data]\nsignal = "zero"\n'
+    still.write_text(MSD_SPEC_FULL.replace("msd-full", "still") + '[data]\nsignal = "zero"\n'
                      'q0_low = [-0.1, -0.1]\nq0_high = [0.1, 0.1]\n')
     assert default_input_bounds(load_spec(str(still))) is None
 

@@ -13,23 +13,13 @@ import json
 import shutil
 
 import pytest
-from datagen import make_dataset, tiny_model_config
+from datagen import MSD_SPEC, make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import ControlConfig, MPCConfig, compare, from_export, tip_output
 from softpinn.bridge.export import export_run, load_exported
 from softpinn.errors import UserError
 from softpinn.symbolic import load_spec
-
-#: the forced two-mass chain tests/datagen.py simulates (as tests/test_control.py's)
-FORCED = """
-name = "test-msd"
-kind = "mass-spring-damper"
-masses = [1.0, 1.8]
-springs = [2.1, 4.6]
-dampers = [0.3, 0.0]
-actuation = [[0.0], [1.0]]
-"""
 
 
 @pytest.fixture(autouse=True)
@@ -41,7 +31,7 @@ def _private_cache(tmp_path_factory, monkeypatch):
 @pytest.fixture(scope="module")
 def spec(tmp_path_factory):
     path = tmp_path_factory.mktemp("spec") / "forced.toml"
-    path.write_text(FORCED)
+    path.write_text(MSD_SPEC)
     return str(path)
 
 
