@@ -78,3 +78,10 @@ def quick_runs(tmp_path_factory):
 
     get.root = root
     return get
+
+
+@pytest.fixture
+def session_cache(tmp_path_factory, monkeypatch):
+    """Compiled libraries go to a cache of this test session, not the user's (the export and
+    control tests: ``pytestmark = pytest.mark.usefixtures("session_cache")``)."""
+    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))

@@ -28,10 +28,8 @@ from softpinn.errors import UserError
 from softpinn.learn import TrainConfig, train
 from softpinn.symbolic import TrueModel
 
-
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+#: compiled libraries go to a cache of this test session (conftest.py)
+pytestmark = pytest.mark.usefixtures("session_cache")
 
 
 @pytest.fixture(scope="module")

@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 import pytest
+from datagen import MSD_SPEC_FULL
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import ControlConfig, MPCConfig, compare
@@ -27,27 +28,16 @@ from softpinn.errors import UserError
 #: the module of compare() (its name is the function's in the package)
 compare_module = importlib.import_module("softpinn.bridge.control.compare")
 
-#: a chain of two masses with a force on each: the cheapest arm to control
-SPEC = """
-name = "robust-msd"
-kind = "mass-spring-damper"
-masses = [1.0, 1.8]
-springs = [2.1, 4.6]
-dampers = [0.3, 0.0]
-actuation = "generalized"
-"""
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    """Compiled libraries go to a cache of this test session, not the user's."""
-    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+#: compiled libraries go to a cache of this test session (conftest.py)
+pytestmark = pytest.mark.usefixtures("session_cache")
 
 
 @pytest.fixture
 def spec(tmp_path):
     path = tmp_path / "msd.toml"
-    path.write_text(SPEC)
+    path.write_text(MSD_SPEC_FULL)
     return str(path)
 
 

@@ -29,10 +29,8 @@ KINDS = {
 MODEL_KW = {"lagrangian": dict(activation="tanh", damping_form="constant")}
 
 
-@pytest.fixture(autouse=True)
-def _private_cache(tmp_path_factory, monkeypatch):
-    """Compiled libraries go to a cache of this test session, not the user's."""
-    monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+#: compiled libraries go to a cache of this test session (conftest.py)
+pytestmark = pytest.mark.usefixtures("session_cache")
 
 
 @pytest.fixture(scope="module")
