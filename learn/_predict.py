@@ -31,7 +31,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from softpinn.errors import UserError
-from softpinn.learn._actuator import run_actuator, with_actuator
 from softpinn.learn._data import Dataset, load_dataset, make_pairs, trajectories
 from softpinn.learn._integrate import rollout
 from softpinn.learn._losses import Pairs, pair_errors
@@ -375,7 +374,7 @@ def predict(
     cfg = run.model_config
     if not isinstance(data, Dataset):
         data = load_dataset(data, n=cfg.n, m=cfg.m)
-    data = with_actuator(data, run_actuator(run.train_config.actuator, data.m))
+    data = run.inputs(data)
     same = data.sha256 == run.info["dataset"]["sha256"]
     if trajectories == "auto":
         trajectories = "test" if same else "all"

@@ -14,6 +14,7 @@ import numpy as np
 
 from softpinn.errors import UserError
 from softpinn.learn import _checkpoint as ckpt
+from softpinn.learn._actuator import run_actuator, with_actuator
 from softpinn.learn._config import FORMAT, TrainConfig
 from softpinn.learn._data import (
     Dataset,
@@ -126,6 +127,11 @@ class LoadedRun:
     seed: int
     run_dir: Path
     info: dict  # the whole config.json (dataset path/hash, split, pairs, ...)
+
+    def inputs(self, data: Dataset) -> Dataset:
+        """``data`` as the model sees it: u through the run's actuator (learn/_actuator.py;
+        none for a run without one)."""
+        return with_actuator(data, run_actuator(self.train_config.actuator, data.m))
 
 
 def load_run(run_dir: str | Path, *, member: int | None = None) -> LoadedRun:

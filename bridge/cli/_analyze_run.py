@@ -21,7 +21,7 @@ from softpinn.bridge.cli.runnotes import member_notes
 from softpinn.bridge.figures.analysis import write_report
 from softpinn.bridge.figures.tables import percent_text
 from softpinn.errors import UserError
-from softpinn.learn import load_dataset, load_run, run_actuator, with_actuator
+from softpinn.learn import load_dataset, load_run
 from softpinn.symbolic import TrueModel, load_spec
 
 
@@ -201,7 +201,7 @@ def _force_samples(run, data_path, count, transforms):
             return None
     data = load_dataset(data_path, n=run.model_config.n, m=run.model_config.m)
     # the arm feels the actuator's output, the network's u (the run's actuator; none: as recorded)
-    data = with_actuator(data, run_actuator(run.train_config.actuator, data.m))
+    data = run.inputs(data)
     own = data.sha256 == recorded.get("sha256")
     ids = run.info.get("split", {}).get("train") if own else None
     return data_samples(data, ids, count=count)

@@ -29,7 +29,6 @@ from softpinn.learn import (
     load_ensemble,
     make_pairs,
     one_step_errors,
-    run_actuator,
     train,
     trajectories,
     with_actuator,
@@ -224,8 +223,7 @@ def stage_predict(plan, kind: str, rate: float, imported: dict, recorded: dict,
     recorded_data = data
     for j, run in enumerate(load_ensemble(trained["run"])):
         # the network's u is its actuator's output (the run's, as it trained)
-        data = with_actuator(recorded_data,
-                             run_actuator(run.train_config.actuator, recorded_data.m))
+        data = run.inputs(recorded_data)
         short = evaluate(run.model, data, test, horizon=horizon, **kw)
         reset = evaluate(run.model, data, test, horizon=span, reset_every=plan.reset_every, **kw)
         cfg = run.model_config

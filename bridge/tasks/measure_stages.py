@@ -29,7 +29,6 @@ from softpinn.learn import (
     one_step_errors,
     resolve_actuator,
     rollouts,
-    run_actuator,
     trajectories,
     with_actuator,
 )
@@ -53,7 +52,7 @@ def stage_predict(plan: Plan, kind: str, files: dict, trained: dict, folder: Pat
         tc, cfg = run.train_config, run.model_config
         kw = dict(substeps=tc.substeps, input_hold=tc.input_hold)
         # the network's u is its actuator's output (a spec's [actuator] table; none otherwise)
-        data = with_actuator(recorded, run_actuator(tc.actuator, recorded.m))
+        data = run.inputs(recorded)
         long = evaluate(run.model, data, test, horizon=long_horizon,
                         loss_weight=REPORT_WEIGHT, **kw)
         main = [_truncated_error(r, horizon) for r in long.rollouts]

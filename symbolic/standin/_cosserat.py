@@ -34,6 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
+from softpinn.actuator import lag
 from softpinn.errors import UserError
 from softpinn.symbolic._outputs import dumps, install_file, partial_path, remove_stale_partials
 from softpinn.symbolic.spec._orientation import (
@@ -214,21 +215,9 @@ def actuator_response(config: CosseratArm, command: Command, t: np.ndarray) -> n
     dead time (held at its first value before t = 0) and passed through its first-order lag,
     started at rest; exact for inputs linear between the times."""
     t = np.asarray(t, float)
-    dt = float(t[1] - t[0]) if len(t) > 1 else 1.0
     out = np.empty((len(t), INPUTS))
-    for j in range(INPUTS):
-        c = command(np.maximum(t - config.delay[j], 0.0))[:, j]
-        tau = config.tau[j]
-        if tau == 0:
-            out[:, j] = c
-            continue
-        a = math.exp(-dt / tau)
-        b1 = 1 - tau / dt * (1 - a)  # weight of the step's end value (first-order hold)
-        b0 = 1 - a - b1
-        y, cl = [float(c[0])], c.tolist()
-        for k in range(len(cl) - 1):
-            y.append(a * y[-1] + b0 * cl[k] + b1 * cl[k + 1])
-        out[:, j] = y
+    for j in range(INPUTS):  # the delayed command from its formula, then softpinn's lag
+        out[:, j] = lag(t, command(np.maximum(t - config.delay[j], 0.0))[:, j], config.tau[j])
     return out
 
 
