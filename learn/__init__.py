@@ -64,6 +64,7 @@ from softpinn.learn._losses import (
 )
 from softpinn.learn._models import DynamicsModel, ModelConfig, make_model
 from softpinn.learn._predict import evaluate, one_step_errors, predict, rollouts
+from softpinn.learn._prior import PRIOR_SETTINGS, resolve_prior
 from softpinn.learn._programs import ProgramCache
 from softpinn.learn._rundir import LoadedRun, dataset_info, load_ensemble, load_run
 from softpinn.learn._splits import recorded_test_split, split_trajectories
@@ -103,6 +104,8 @@ __all__ = [
     "LinearSecondOrder",
     "LoadedRun",
     "make_model",
+    "PRIOR_SETTINGS",
+    "resolve_prior",
     "make_pairs",
     "mass_scale",
     "ModelConfig",

@@ -17,6 +17,7 @@ from softpinn.learn._actuator import check_actuator_setting
 from softpinn.learn._data import ACCEL_LABELS
 from softpinn.learn._losses import ACCEL_SPACES
 from softpinn.learn._models import ModelConfig
+from softpinn.learn._prior import PRIOR_SETTINGS
 from softpinn.learn._splits import check_validation_setting
 from softpinn.learn._velocity import MOMENTA
 
@@ -134,6 +135,11 @@ class TrainConfig:
         "auto", "loss", "lag and dead time between the recorded u and the arm "
         "(softpinn/actuator.py): TAU:DELAY in s (comma lists: one per input), none, data (the "
         "file's), identify (fitted to the data) or auto (data, else identify on imports)")
+    prior: str = _f(
+        "auto", "loss", "linear: the networks start as the least-squares linear model "
+        "M q̈ + D q̇ + K q = B u + c of the training data and learn the correction on it "
+        "(learn/_prior.py); none: from scratch; auto: linear on imported recordings",
+        PRIOR_SETTINGS)
     substeps: int = _f(1, "loss", "RK4 sub-steps per pair")
     input_hold: str = _f("constant", "loss", "the input between two samples: held or "
                          "interpolated linearly", INPUT_HOLDS)
@@ -257,6 +263,7 @@ class TrainConfig:
             ("accel_space", ACCEL_SPACES),
             ("momenta", MOMENTA),
             ("test_with", TEST_WITH),
+            ("prior", PRIOR_SETTINGS),
         ):
             if getattr(self, name) not in allowed:
                 raise UserError(

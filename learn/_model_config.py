@@ -12,6 +12,7 @@ from typing import Any
 from softpinn.errors import UserError
 from softpinn.learn._known_input import parse_known_input
 from softpinn.learn._nets import ACTIVATIONS
+from softpinn.learn._prior import parse_prior
 
 __all__ = ["KINDS", "ModelConfig"]
 
@@ -59,6 +60,9 @@ class ModelConfig:
     ``known_input``, JSON text of a constant n x m matrix or of the exact A(q) as an instruction
     program (:mod:`learn._known_input`; :func:`learn._known_input.known_input_text` writes it). The
     text is part of the configuration, so a run's ``config.json`` rebuilds the model on its own.
+    ``prior``: None, or JSON text of a fixed linear model (:mod:`learn._prior`) that the model
+    starts as and its networks correct; written by ``train`` from the training data's
+    least-squares fit (``TrainConfig.prior``).
     """
 
     kind: str
@@ -77,6 +81,7 @@ class ModelConfig:
     state_kind: str | None = None
     mass_init: float | None = None
     known_input: str | None = None
+    prior: str | None = None
 
     def __post_init__(self):
         set_ = lambda k, v: object.__setattr__(self, k, v)
@@ -112,6 +117,15 @@ class ModelConfig:
         elif self.known_input is not None:
             raise UserError(f"known_input is given but input_form is {self.input_form!r}; "
                             "use input_form 'known'")
+        if self.prior is not None:
+            if self.input_form == "known":
+                raise UserError("a linear prior and a known input matrix do not go together: "
+                                "the prior's M = I would contradict the scale the known A "
+                                "pins; use one of them")
+            if self.kind == "blackbox" and self.state_kind == "momentum":
+                raise UserError("a linear prior needs a black box on (q, q̇) (state_kind "
+                                "'velocity'), not on momenta")
+            parse_prior(self.prior, self.n, self.m)
         if isinstance(self.eps, bool) or not (
                 isinstance(self.eps, int | float) and math.isfinite(self.eps) and self.eps >= 0):
             raise UserError(f"eps: must be a finite number >= 0, got {self.eps!r}")

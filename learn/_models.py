@@ -38,6 +38,7 @@ from softpinn.learn._nets import (
     first_layers_transpose,
     make_mlp,
 )
+from softpinn.learn._prior import LinearPrior, quiet_start, zero_last
 
 __all__ = [
     "KINDS",
@@ -120,6 +121,19 @@ class _PhysicsModel(DynamicsModel):
     potential: Any  # V(q) -> scalar
     damping: Any  # D(q) -> (n, n), positive semi-definite
     input_map: Any  # A(q) -> (n, m)
+    prior: Any = None  # None, or a fixed linear force F₀(q, q̇, u) (learn/_prior.py)
+
+    def _prior_force(self, q, qd, u):
+        """F₀(q, q̇, u) of the linear prior, 0 without one (static: decided when traced)."""
+        return 0.0 if self.prior is None else self.prior(q, qd, u)
+
+    def _with_prior(self, mats: dict, q) -> dict:
+        """The learned matrices with the prior's share added: G + K₀ q - c₀, D + D₀, A + B₀."""
+        if self.prior is None:
+            return mats
+        p = self.prior.matrices(q)
+        return {**mats, "G": mats["G"] + p["G"], "D": mats["D"] + p["D"],
+                "A": mats["A"] + p["A"]}
 
     def energy(self, x):
         """Total energy T + V at state x (for tests and diagnostics)."""
@@ -142,13 +156,13 @@ class _LagrangianBase(_PhysicsModel):
         """Learned {"M", "M_inv", "D", "G", "A"} at one q (G = dV/dq)."""
         (q,) = self._cast(q)
         L = self.mass.factor(q)
-        return {
+        return self._with_prior({
             "M": L @ L.T,
             "M_inv": cho_inverse(L),
             "D": self.damping(q),
             "G": _potential_grad(self.potential, q),
             "A": self.input_map(q),
-        }
+        }, q)
 
     def energy(self, x):
         (x,) = self._cast(x)
@@ -214,7 +228,7 @@ class LagrangianNet(_LagrangianBase):
             Au = mv(A.reshape(self.input_map.shape), u)
         else:
             Au = _apply(self.input_map, q, u)
-        rhs = Au - mdot_qd + dT_dq_minus_G - Dqd
+        rhs = Au - mdot_qd + dT_dq_minus_G - Dqd + self._prior_force(q, qd, u)
         return cho_solve(Lc, rhs)
 
     def _separate_qdd(self, q, qd, u):
@@ -223,7 +237,8 @@ class LagrangianNet(_LagrangianBase):
         w = mtv(Lc, qd)
         mdot_qd = mv(Ldot, w) + mv(Lc, mtv(Ldot, qd))
         G = _potential_grad(self.potential, q)
-        rhs = _apply(self.input_map, q, u) - mdot_qd + dT_dq - G - _apply(self.damping, q, qd)
+        rhs = (_apply(self.input_map, q, u) - mdot_qd + dT_dq - G - _apply(self.damping, q, qd)
+               + self._prior_force(q, qd, u))
         return cho_solve(Lc, rhs)
 
 
@@ -244,7 +259,8 @@ class LagrangianHessianNet(_LagrangianBase):
         H = jax.hessian(self.lagrangian, argnums=1)(q, qd)
         mixed = jax.jacfwd(jax.grad(self.lagrangian, argnums=1), argnums=0)(q, qd)
         dL_dq = jax.grad(self.lagrangian, argnums=0)(q, qd)
-        rhs = _apply(self.input_map, q, u) - mv(mixed, qd) + dL_dq - _apply(self.damping, q, qd)
+        rhs = (_apply(self.input_map, q, u) - mv(mixed, qd) + dL_dq - _apply(self.damping, q, qd)
+               + self._prior_force(q, qd, u))
         return cho_solve(cholesky(0.5 * (H + H.T)), rhs)
 
 
@@ -285,7 +301,8 @@ class HamiltonianNet(_PhysicsModel):
         Lc, _, dT_dq = _mass_terms(self.mass, q, p, tangent=False)
         dH_dq = dT_dq + _potential_grad(self.potential, q)
         qdot = mv(Lc, mtv(Lc, p))
-        pdot = -dH_dq - _apply(self.damping, q, qdot) + _apply(self.input_map, q, u)
+        pdot = (-dH_dq - _apply(self.damping, q, qdot) + _apply(self.input_map, q, u)
+                + self._prior_force(q, qdot, u))
         return jnp.concatenate([qdot, pdot])
 
     def qdd(self, q, qd, u):
@@ -307,13 +324,13 @@ class HamiltonianNet(_PhysicsModel):
         """Learned {"M_inv", "M", "D", "G", "A"} at one q (M by two triangular solves)."""
         (q,) = self._cast(q)
         Lc = self.mass.factor(q)
-        return {
+        return self._with_prior({
             "M_inv": Lc @ Lc.T,
             "M": cho_inverse(Lc),
             "D": self.damping(q),
             "G": _potential_grad(self.potential, q),
             "A": self.input_map(q),
-        }
+        }, q)
 
     def energy(self, x):
         (x,) = self._cast(x)
@@ -322,9 +339,11 @@ class HamiltonianNet(_PhysicsModel):
 
 
 class BlackBoxNet(DynamicsModel):
-    """Black-box baseline (the paper's FNN): an MLP from [q, v, u] to the state derivative (2n)."""
+    """Black-box baseline (the paper's FNN): an MLP from [q, v, u] to the state derivative (2n).
+    With a linear prior (on x = (q, q̇)): ẋ = (q̇, F₀(q, q̇, u)) + MLP([x, u])."""
 
     mlp: MLP
+    prior: Any = None
 
     @property
     def state_kind(self) -> str:
@@ -332,7 +351,12 @@ class BlackBoxNet(DynamicsModel):
 
     def vector_field(self, x, u):
         (x, u) = self._cast(x, u)
-        return self.mlp(jnp.concatenate([x, u]))
+        out = self.mlp(jnp.concatenate([x, u]))
+        if self.prior is None:
+            return out
+        n = self.config.n
+        q, qd = x[:n], x[n:]
+        return out + jnp.concatenate([qd, self.prior(q, qd, u)])
 
 
 def _physics_parts(config: ModelConfig, key, *, mass_eps):
@@ -392,10 +416,17 @@ def make_model(config: ModelConfig, *, key) -> DynamicsModel:
         mlp = make_mlp(
             2 * n + m, 2 * n, *config.hidden, config.activation, key=key, dtype=config.dtype
         )
-        return BlackBoxNet(config=config, mlp=mlp)
+        if config.prior is None:
+            return BlackBoxNet(config=config, mlp=mlp)
+        return BlackBoxNet(config=config, mlp=zero_last(mlp),
+                           prior=LinearPrior(config.prior, n, m))
     cls = {
         "lagrangian": LagrangianNet,
         "lagrangian-hessian": LagrangianHessianNet,
         "hamiltonian": HamiltonianNet,
     }[config.kind]
-    return cls(config=config, **_physics_parts(config, key, mass_eps=config.eps))
+    parts = _physics_parts(config, key, mass_eps=config.eps)
+    if config.prior is None:
+        return cls(config=config, **parts)
+    return cls(config=config, **quiet_start(parts, config.n, config.eps),
+               prior=LinearPrior(config.prior, config.n, config.m))

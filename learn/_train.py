@@ -61,6 +61,7 @@ from softpinn.learn._losses import equilibria_of
 from softpinn.learn._members import resolve_ensemble_mode
 from softpinn.learn._models import ensure_dtype
 from softpinn.learn._objective import check_rollout_schedule, to_pairs, to_windows
+from softpinn.learn._prior import resolve_prior
 from softpinn.learn._programs import PROGRAMS, ProgramCache, _chunked
 from softpinn.learn._rundir import (
     LoadedRun,
@@ -246,6 +247,11 @@ def train(
             config = dataclasses.replace(config, momenta=stored_cfg.momenta)  # auto: as decided
         if config is not None and config.actuator in RESOLVED_FROM_DATA:
             config = dataclasses.replace(config, actuator=stored_cfg.actuator)  # as resolved
+        if config is not None and config.model.prior is None and config.prior != "none":
+            # the prior's numbers, as fitted when the run started (auto: as decided)
+            config = dataclasses.replace(
+                config, prior=stored_cfg.prior,
+                model=dataclasses.replace(config.model, prior=stored_cfg.model.prior))
         changed = config is not None and config != stored_cfg
         config = resumed_config(stored_cfg, config, run_dir) if changed else stored_cfg
         changed = config != stored_cfg
@@ -290,6 +296,14 @@ def train(
         config = dataclasses.replace(config, actuator=actuator.text())
         actuator_info = {**actuator.to_dict(), "setting": asked, "note": told}
     data = with_actuator(data, run_actuator(config.actuator, data.m))
+    prior_info = stored.get("prior") if resume else None
+    if not resume and config.model.prior is None:  # the linear prior, fitted once (_prior.py)
+        asked = config.prior
+        text, told = resolve_prior(asked, data, train_ids)
+        if text is not None:
+            config = dataclasses.replace(config, prior="linear",
+                                         model=dataclasses.replace(config.model, prior=text))
+            prior_info = {"setting": asked, "note": told}
     state = config.model.state_kind
     if config.loss == "rollout":
         check_rollout_schedule(config, data, train_ids)
@@ -338,6 +352,7 @@ def train(
                   **({"validation": val_np.count} if val_ids.size else {})},
         **({"notes": [note]} if note else {}),
         **({"actuator": actuator_info} if actuator_info else {}),
+        **({"prior": prior_info} if prior_info else {}),
         "devices": devices,
         "steps_per_epoch": prog.steps,
         "ensemble_mode": mode,

@@ -362,9 +362,12 @@ def test_the_verdict_names_the_winner_at_each_horizon():
     line = verdict("Lagrangian network", {1.0: 1e-5, 5.0: 2e-2}, c)
     first, second = line.split("; ")
     assert first == ("Lagrangian network: at 1 s beats the best linear model (ARX (order 2)) "
-                     "by 10x and no motion by 100x")
+                     "by 10.0x and no motion by 100x")
     # at 5 s no motion (1e-3) is better than ARX (1e-2): the network loses to no motion
-    assert second == "at 5 s LOSES to no motion (its error is 20x no motion's)"
+    assert second == "at 5 s LOSES to no motion (its error is 20.0x no motion's)"
+    # within 1 %, a win or a loss reads as the tie it is (1.004: "1.00x", never "1x")
+    assert verdict("x", {1.0: 1e-4 / 1.004}, c).endswith("by 1.00x (within 1 %: a tie) and "
+                                                         "no motion by 10.0x")
     # beating the linear model but not no motion is a loss, to no motion
     line = verdict("black box", {5.0: 5e-3}, c)
     assert "LOSES to no motion" in line and "beats" not in line

@@ -115,7 +115,10 @@ def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],
 def _ratio(a: float, b: float) -> str:
     if not (math.isfinite(a) and math.isfinite(b)) or b <= 0:
         return "diverged" if not math.isfinite(a) else "-"
-    return f"{a / b:.3g}x"
+    r = a / b
+    # three significant digits, trailing zeros kept below 100: 1.004 reads 1.00x, not 1x
+    text = f"{r:#.3g}" if 1e-3 <= r < 100 else f"{r:.3g}"
+    return f"{text}x" + (" (within 1 %: a tie)" if 1 / 1.01 < r < 1.01 else "")
 
 
 def verdict(model: str, errors: Mapping[float, float], comparison: BaselineComparison) -> str:

@@ -15,7 +15,7 @@ def run(args) -> int:
     config = ReproduceConfig(
         task=args.task, quick=args.quick, seeds=args.seeds, epochs=args.epochs,
         lbfgs_steps=args.lbfgs_steps, float32=args.float32, jobs=args.jobs,
-        actuator=args.actuator,
+        actuator=args.actuator, prior=args.prior,
     )
     bar = None if args.quiet else EpochBar()
 

@@ -123,6 +123,8 @@ def run(args) -> int:
         info = read_json(Path(result.run_dir) / "config.json")
         print(_validation_text(info))
         print(_actuator_text(info))
+        if (info.get("prior") or {}).get("note"):
+            print(info["prior"]["note"])
         print(f"run directory: {result.run_dir}")
     return 0
 

@@ -55,6 +55,11 @@ def add_arguments(p) -> None:
                         "or a comma list with one per input, e.g. 0.1:0.06); the commands are "
                         "recorded as u and the networks and baselines are given the actuator "
                         "(docs/experiment.md)")
+    p.add_argument("--prior", default=None, choices=("none", "linear", "auto"),
+                   help="experiment and cosserat only: the networks start as the least-squares "
+                        "linear model of the training data and learn the correction "
+                        "(train --prior; default: none for the experiment, the paper's "
+                        "networks; auto for cosserat, linear on its imported recordings)")
     p.add_argument("--quiet", action="store_true", help="no progress output")
 
 

@@ -35,6 +35,7 @@ finished stages are skipped. The report (``report.md``, :mod:`bridge.report.coss
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import math
 import time
@@ -116,7 +117,7 @@ def run_variant(plan: CosseratPlan, variant: str, stages: Stages, progress) -> d
                           lambda f: stage_actuator(plan, imported))
     networks: dict[str, dict] = {}
     train_base = {k: base[k] for k in ("samples", "batch_size", "input_hold", "loss",
-                                       "train_seed")}
+                                       "train_seed", "prior")}
     for network in plan.networks:
         settings = {"import": imp_settings, **train_base, "actuator": act_settings,
                     "network": base["networks"][plan.networks.index(network)]}
@@ -143,6 +144,8 @@ def run_cosserat(config: ReproduceConfig, out_dir, *, log: Callable[[str], None]
     if not has_pyelastica():
         raise UserError(MISSING_EXTRA)
     plan = make_plan(config.quick, COSSERAT_QUICK)
+    if config.prior is not None:
+        plan = dataclasses.replace(plan, prior=config.prior)
     out = outputs.claim(out_dir, "reproduce", force=force)
     t0 = time.perf_counter()
     write_json(out / "plan.json", plan.to_dict())

@@ -93,6 +93,9 @@ class CosseratPlan:
     #: ``identify`` (from the training trajectories, as a user without the stand-in's numbers
     #: would), ``none``, or ``TAU:DELAY``; every network and baseline gets the same
     actuator: str = "identify"
+    #: the networks' linear prior (``TrainConfig.prior``): auto gives linear on the imported
+    #: recordings, so the networks start as the least-squares linear model
+    prior: str = "auto"
 
     def network(self, kind: str) -> Network:
         return next(n for n in self.networks if n.kind == kind)

@@ -123,6 +123,7 @@ def stage_train(plan: CosseratPlan, network: Network, imported: dict, actuator: 
         validation=0,  # the held-out trajectories of this file are the validation ones already
         input_hold=plan.input_hold, loss=plan.loss, momenta=network.momenta,
         actuator=actuator["text"],
+        prior=getattr(plan, "prior", "auto"),
         eval_every=max(1, epochs // 25), checkpoint_every=max(1, epochs // 5),
     )
     run_dir = folder / "run"

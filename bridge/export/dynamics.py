@@ -12,6 +12,9 @@ model) and wraps everything into named ``casadi.Function`` objects:
 * Hamiltonian network (eq. 7), M⁻¹ = L Lᵀ: q̇ = M⁻¹ p, ṗ = -∂H/∂q - D q̇ + A u with
   H = ½ pᵀ M⁻¹ p + V; q̈ at a velocity state through p = M q̇ and q̈ = ∂(M⁻¹ p)/∂q q̇ + M⁻¹ ṗ.
 * Black box: ẋ = MLP([x, u]) and, on a velocity state, q̈ = its last n entries.
+* A linear prior (``learn/_prior.py``) adds its fixed force F₀ = B₀ u + c₀ - K₀ q - D₀ q̇ to the
+  right-hand side of eq. 6 and to ṗ of eq. 7 (and (q̇, F₀) to a black box's ẋ); the matrices
+  are the totals, G + K₀ q - c₀, D + D₀ and A + B₀, as the JAX model's ``matrices``.
 
 The ensemble mean is the mean of the members' vector fields (and of their q̈, M, M⁻¹, G, D, A);
 its ``step`` integrates the mean field.
@@ -38,6 +41,17 @@ def _damping(field: dict, q):
     return value
 
 
+def _prior(params: dict, q, qd, u):
+    """F₀(q, q̇, u) and the prior's shares (G₀, D₀, A₀) of a model with a linear prior, else
+    None."""
+    p = params.get("prior")
+    if p is None:
+        return None
+    K, D, B, c = (ca.DM(p[k]) for k in ("K", "D", "B", "c"))
+    G0 = ca.mtimes(K, q) - c
+    return ca.mtimes(B, u) - G0 - ca.mtimes(D, qd), G0, D, B
+
+
 def _physics_parts(params: dict, q):
     L = field_expression(params["mass"], q)
     V = field_expression(params["potential"], q)
@@ -55,6 +69,10 @@ def _lagrangian(params: dict, q, qd, u) -> dict:
     dT_dq = ca.gradient(0.5 * ca.dot(qd, Mqd), q)
     G = ca.gradient(V, q)
     rhs = ca.mtimes(A, u) - mdot_qd + dT_dq - G - ca.mtimes(D, qd)
+    prior = _prior(params, q, qd, u)
+    if prior is not None:
+        F0, G0, D0, A0 = prior
+        rhs, G, D, A = rhs + F0, G + G0, D + D0, A + A0
     qdd = cho_solve(L, rhs)
     return {"qdd": qdd, "M": M, "M_inv": lower_inverse(L), "G": G, "D": D, "A": A}
 
@@ -67,10 +85,14 @@ def _hamiltonian(params: dict, q, qd, p, u) -> dict:
     H = 0.5 * ca.dot(w, w) + V
     qdot = ca.mtimes(L, w)
     pdot = -ca.gradient(H, q) - ca.mtimes(D, qdot) + ca.mtimes(A, u)
+    G = ca.gradient(V, q)
+    prior = _prior(params, q, qdot, u)
+    if prior is not None:
+        F0, G0, D0, A0 = prior
+        pdot, G, D, A = pdot + F0, G + G0, D + D0, A + A0
     # q̈ = d/dt (M⁻¹(q) p) along (q̇, ṗ), then p = M q̇ (two triangular solves with L)
     acc = ca.jtimes(qdot, ca.vertcat(q, p), ca.vertcat(qd, pdot))
     qdd = ca.substitute(acc, p, cho_solve(L, qd))
-    G = ca.gradient(V, q)
     return {
         "field_qp": ca.vertcat(qdot, pdot),
         "qdd": qdd,
@@ -94,6 +116,9 @@ def member_expressions(params: dict, sym: dict) -> dict:
     kind = params["kind"]
     if kind == "blackbox":
         field = mlp(params["mlp"], ca.vertcat(x, u))
+        prior = _prior(params, x[:n], x[n:], u)
+        if prior is not None:  # on (q, q̇) only (ModelConfig refuses a prior on momenta)
+            field = field + ca.vertcat(x[n:], prior[0])
         out = {"field": field}
         if params["state_kind"] == "velocity":
             out["qdd"] = ca.substitute(field[n:], x, ca.vertcat(q, qd))

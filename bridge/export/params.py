@@ -66,6 +66,8 @@ def model_params(model) -> dict:
     # its own momenta p = M̂ q̇ (learn/_velocity.py): its field is the same
     state = "momentum" if cfg.kind == "hamiltonian" else model.state_kind
     out = {"kind": cfg.kind, "n": int(cfg.n), "m": int(cfg.m), "state_kind": state}
+    if getattr(model, "prior", None) is not None:  # the fixed linear force (learn/_prior.py)
+        out["prior"] = {k: _f64(v) for k, v in model.prior.to_data().items() if k != "kind"}
     if cfg.kind == "blackbox":
         out["mlp"] = mlp_params(model.mlp)
         return out

@@ -124,6 +124,9 @@ def _settings_lines(run: CosseratRun) -> list[str]:
         "stretch",
         f"- actuator: `--actuator {p.actuator}` (the stand-in's own lag and dead time are in "
         "`<variant>/record/cosserat.json`; the study does not give them to the models)",
+        f"- prior: `--prior {getattr(p, 'prior', 'auto')}` (auto: the networks start as the "
+        "least-squares linear model of their training trajectories and learn the correction; "
+        "epoch 0 is that model, so the validation loss keeps it unless training finds better)",
         f"- training: loss `{p.loss}`, input hold `{p.input_hold}`, batch {p.batch_size}, "
         f"{'all pairs' if p.samples is None else f'{p.samples} pairs'}, float64, seed "
         f"{p.train_seed}",

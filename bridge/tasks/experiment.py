@@ -144,11 +144,16 @@ class ExperimentPlan:
     #: ``[actuator]`` table): ``time_constant`` and ``delay`` [s], one value or one per input;
     #: None: the commands reach the arm at once (as before the option existed)
     actuator: Mapping[str, list[float]] | None = None
+    #: the networks' linear prior (``--prior``, learn/_prior.py): none (the paper's networks,
+    #: trained from scratch) or linear (they start as the least-squares linear model)
+    prior: str = "none"
 
     def to_dict(self) -> dict[str, Any]:
         d = json.loads(json.dumps(dataclasses.asdict(self)))
         if self.actuator is None:
             d.pop("actuator")  # plan.json as before the option existed
+        if self.prior == "none":
+            d.pop("prior")
         return d
 
     def actuator_dynamics(self, m: int) -> Actuator:
@@ -243,6 +248,7 @@ def make_experiment_plan(spec, config: ReproduceConfig) -> ExperimentPlan:
         input_hold=recipe.input_hold, horizon=float(recipe.prediction_horizon),
         reset_every=RESET_EVERY, analysis_points=config.analysis_points or (30 if quick else 200),
         seeds=config.seeds, float32=config.float32, actuator=plan_actuator(spec, config),
+        prior="linear" if config.prior in ("linear", "auto") else "none",
     )
 
 
@@ -354,7 +360,8 @@ def model_stages(spec, plan: ExperimentPlan, stages: Stages, rate: float, prep: 
     settings = {"import": imp_settings, "model": plan.models[kind],
                 "samples": plan.samples, "batch": plan.batch_size,
                 "substeps": plan.substeps[rn], "hold": plan.input_hold,
-                "seeds": plan.seeds, "float32": plan.float32}
+                "seeds": plan.seeds, "float32": plan.float32,
+                **({"prior": plan.prior} if plan.prior != "none" else {})}
     tr = stages.run(f"train/{rn}/{prep}/{kind}", settings,
                     lambda d: stage_train(spec, plan, kind, rate, imp, d, progress))
     pr = stages.run(f"predict/{rn}/{prep}/{kind}",

@@ -160,6 +160,7 @@ def stage_train(spec, plan, kind: str, rate: float, imported: dict,
         substeps=int(plan.substeps[rate_name(rate)]), input_hold=plan.input_hold,
         # the plan's actuator, known (none: the commands reach the arm at once, as before)
         actuator=plan.actuator_dynamics(spec.m).text(),
+        prior=getattr(plan, "prior", "none"),
         eval_every=max(1, epochs // 25), checkpoint_every=max(1, epochs // 5),
     )
     run_dir = folder / "run"

@@ -13,6 +13,7 @@ from typing import Any
 from softpinn.actuator import Actuator
 from softpinn.bridge.tasks.budget import ModelBudget
 from softpinn.errors import UserError
+from softpinn.learn import PRIOR_SETTINGS
 from softpinn.symbolic import LOSS_KEYS, MODEL_KEYS, data_config, load_spec, physics_data_table
 
 TASKS = ("task1", "task2", "task3", "task4", "task5")
@@ -92,6 +93,9 @@ class ReproduceConfig:
     #: the experiment's actuator, TAU:DELAY in s (``--actuator``, softpinn/actuator.py): the
     #: stand-in's tendons follow their commands through this lag and dead time
     actuator: str | None = None
+    #: the linear prior of the networks (``--prior``, learn/_prior.py): the experiment's
+    #: default is none (the paper's networks), the Cosserat study's auto (linear on imports)
+    prior: str | None = None
 
     def __post_init__(self):
         studies = TASKS + EXPERIMENTS + CHALLENGES + COSSERAT
@@ -128,6 +132,13 @@ class ReproduceConfig:
             except UserError as e:  # the same rules as train --actuator, naming this flag
                 msg = str(e).removeprefix("actuator: ")
                 raise UserError(f"--actuator: {msg}") from None
+        if self.prior is not None:
+            if self.task not in EXPERIMENTS + COSSERAT:
+                raise UserError(f"--prior: only the experiment and cosserat studies take it, "
+                                f"not {self.task}; leave it out")
+            if self.prior not in PRIOR_SETTINGS:
+                raise UserError(f"--prior: expected one of {list(PRIOR_SETTINGS)}, got "
+                                f"{self.prior!r}")
 
 
 # ------------------------------------------------------------------------------------ plan
