@@ -164,8 +164,9 @@ def plot_rollout(
     # the error is zero at t0 (the true initial state): plot from the first step on
     with np.errstate(invalid="ignore", over="ignore"):
         err = _finite(np.maximum(np.abs(q_pred - q_true)[1:], 1e-300))
-    for i in range(n):
-        ax.plot(t[1:], err[:, i], lw=1.0, label=f"|{names[i]} error|")
+    for i in range(n):  # past ten coordinates (a 4-segment arm) the colours repeat: restyle
+        ax.plot(t[1:], err[:, i], ("-", "--", ":", "-.")[(i // 10) % 4], lw=1.0,
+                color=f"C{i % 10}", label=f"|{names[i]} error|")
     ax.legend(fontsize=7, ncol=min(n, 3))
     ax.set_yscale("log")
     ax.set_xlabel("time from the trajectory's start [s]")

@@ -4,6 +4,10 @@ one directory
 * ``report.md``: the summary of every transform and paper-shaped tables for the first q, the
   force and acceleration terms along the data and what the data show of the inertia;
 * ``summary.{md,csv,tex}`` and ``table_<transform>.{md,csv,tex}`` (all q; Tables I, II, V-IX);
+  for a large arm (:func:`bridge.figures.large_arms.is_large`: n > 4 or m > 8) the report
+  summarises each transform by per-segment blocks, the entries that contribute most and the
+  residuals at the first q instead, the full tables being kept as ``table_<transform>.csv``
+  only, and ``P_entries.png`` draws at most 16 entries of P(q) (issue 46);
 * ``analysis.json``: every number (q, both sides' matrices, each transform's P, residuals...);
 * ``scatter.png`` (one row per transform), ``sweeps.png``, ``P_entries.png``, ``forces.png`` and
   ``accelerations.png`` (:mod:`bridge.figures.matrices`);
@@ -24,6 +28,14 @@ from softpinn.bridge.analysis.excitation import markdown_lines as excitation_lin
 from softpinn.bridge.analysis.forces import markdown_lines as force_lines
 from softpinn.bridge.analysis.transform_result import Status, match_word
 from softpinn.bridge.analysis.transforms import to_jsonable
+from softpinn.bridge.figures.large_arms import (
+    MAX_PANELS,
+    block_lines,
+    is_large,
+    panel_entries,
+    per_q_lines,
+    top_entry_lines,
+)
 from softpinn.bridge.figures.matrices import (
     plot_entries_scatter,
     plot_forces,
@@ -33,6 +45,7 @@ from softpinn.bridge.figures.matrices import (
 from softpinn.bridge.figures.tables import (
     Table,
     summary_table,
+    to_csv,
     to_markdown,
     transform_table,
     write_table,
@@ -66,6 +79,8 @@ def write_report(
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, Path] = {}
     mats = _table_matrices(result)
+    large = is_large(result.true.n, result.true.m)
+    names = result.meta.get("coordinates")
 
     summary = summary_table(result.results, caption="Matrix equivalence: every transform")
     for ext, p in write_table(summary, out, "summary", precision=precision).items():
@@ -78,6 +93,11 @@ def write_report(
             caption=f"true vs learned matrices, transform {name}",
         )  # fmt: skip
         tables[name] = t
+        if large:  # Markdown and LaTeX of a hundred columns help nobody: the CSV keeps all
+            p = out / f"table_{name}.csv"
+            _write_text(p, to_csv(t))
+            paths[p.name] = p
+            continue
         for ext, p in write_table(t, out, f"table_{name}", precision=precision).items():
             paths[f"table_{name}.{ext}"] = p
 
@@ -97,14 +117,15 @@ def write_report(
         p = out / "P_entries.png"
         spread = np.ptp(np.asarray(result.q, float), axis=0)
         widest = int(np.argmax(spread)) if len(result.q) > 1 else None
-        names = result.meta.get("coordinates")
         label = None
         if widest is not None and names:
 
             unit = coordinate_unit(names[widest], result.meta.get("model_kind"))
             label = f"{names[widest]} [{unit}]" if unit else names[widest]
+        entries = (panel_entries(result.results, result.true.n, MAX_PANELS) if large
+                   else None)
         plot_transform_entries(result.q, result.results, path=p, coordinate=widest,
-                               coordinate_label=label)
+                               coordinate_label=label, entries=entries)
         paths[p.name] = p
         for name, comp in (("forces.png", result.forces),
                            ("accelerations.png", result.accelerations)):
@@ -140,6 +161,9 @@ def write_report(
         if name == "smooth":
             held = {m: f"{v:.3g}" for m, v in r.params["residual_heldout"].items()}
             lines += [f"held-out residuals: {held}", ""]
+        if large:
+            lines += _large_lines(result, r, name, k, names)
+            continue
         lines += [
             f"First {k} of {len(result.q)} q (all q in `table_{name}.csv`):",
             "",
@@ -178,6 +202,13 @@ def write_report(
             "![P entries](P_entries.png)",
             "",
         ]
+        if large and entries is not None and len(entries) < result.true.n ** 2:
+            n = result.true.n
+            off = len(entries) - min(n, len(entries))
+            more = f" and the {off} largest off-diagonal (rms over q)" if off else ""
+            lines += [f"The figure draws {len(entries)} of the {n * n} entries of P(q): the "
+                      f"diagonal{more}; the other {n * n - len(entries)} are in the `P` "
+                      "columns of each `table_<transform>.csv` and in `analysis.json`.", ""]
     report = out / "report.md"
     _write_text(report, "\n".join(lines))
     paths["report.md"] = report
@@ -197,6 +228,19 @@ def _scatter_rows(result) -> dict:
         best = min(others, key=key)
         rows[best] = others[best]
     return rows or {None: None}
+
+
+def _large_lines(result, r, name: str, k: int, names) -> list[str]:
+    """A large arm's section body for transform ``name`` (:mod:`bridge.figures.large_arms`):
+    per-segment blocks, the largest entries and the first ``k`` q, the full table linked."""
+    n, m = result.true.n, result.true.m
+    lines = [f"n = {n}, m = {m}: the table of every entry at each q (Tables I, II) is "
+             f"[`table_{name}.csv`](table_{name}.csv), {len(result.q)} q of {n} rows each; "
+             "here by blocks.", ""]
+    lines += block_lines(r, result.true, result.learned, names)
+    lines += top_entry_lines(r, result.true, result.learned)
+    lines += [f"Relative residual of each matrix at the first {k} of {len(result.q)} q:", ""]
+    return lines + per_q_lines(r, result.q, k)
 
 
 def _first_q(table, k):

@@ -97,12 +97,16 @@ def plot_transform_entries(
     path: str | Path | None = None,
     title: str = "",
     coordinate_label: str | None = None,
+    entries: Sequence[tuple[int, int]] | None = None,
 ) -> Figure:
     """Entries P_ij over the sampled q, one panel per entry and one series per transform.
 
     The x axis is the sample index, or ``q[:, coordinate]`` (points sorted by it; labelled
     ``coordinate_label``, e.g. 'dx1 [m]', else q1, q2, ... as the entries P[1,1] count). For a
-    ``smooth`` result the held-out q are drawn as open markers.
+    ``smooth`` result the held-out q are drawn as open markers. ``entries``: the (i, j) to draw
+    (0-based), in a grid of about square shape, the title saying how many of the n² are shown
+    (a large arm's: :func:`bridge.figures.large_arms.panel_entries`); None: all of them, an
+    n x n grid.
     """
     q = np.asarray(q, dtype=np.float64)
     if q.ndim != 2:
@@ -120,26 +124,38 @@ def plot_transform_entries(
     else:
         order = np.argsort(q[:, coordinate], kind="stable")
         x, xlabel = q[order, coordinate], coordinate_label or f"q{coordinate + 1}"
-    fig = Figure(figsize=(2.6 * n + 1, 2.2 * n + 0.7), layout="constrained")
-    axes = fig.subplots(n, n, squeeze=False, sharex=True)
+    if entries is None:
+        rows, cols, shown = n, n, [(i, j) for i in range(n) for j in range(n)]
+    else:
+        shown = [(int(i), int(j)) for i, j in entries]
+        if not shown or any(not (0 <= i < n and 0 <= j < n) for i, j in shown):
+            raise UserError(f"entries: expected (i, j) pairs in [0, {n}), got {list(entries)}")
+        cols = int(np.ceil(np.sqrt(len(shown))))
+        rows = -(-len(shown) // cols)
+    fig = Figure(figsize=(2.6 * cols + 1, 2.2 * rows + 0.7), layout="constrained")
+    grid = fig.subplots(rows, cols, squeeze=False, sharex=True)
+    axes = {e: grid[k // cols, k % cols] for k, e in enumerate(shown)}
+    for k in range(len(shown), rows * cols):  # the grid's unused corner
+        grid[k // cols, k % cols].set_visible(False)
     for name, r in results.items():
         P = r.P[order]
         train = getattr(r, "params", {}).get("train")
-        for i in range(n):
-            for j in range(n):
-                ax = axes[i, j]
-                # points, not lines: the other coordinates vary between neighbouring samples
-                (line,) = ax.plot(x, P[:, i, j], linestyle="none", marker=".", ms=4, label=name)
-                if train is not None:
-                    held = ~np.asarray(train)[order]
-                    ax.plot(x[held], P[held, i, j], "o", mfc="none", color=line.get_color())
-    for i in range(n):
-        for j in range(n):
-            axes[i, j].set_title(f"P[{i + 1},{j + 1}]", fontsize="small")
-        axes[-1, i].set_xlabel(xlabel)
-        axes[i, 0].set_ylabel("entry of P(q)")
-    axes[0, 0].legend(fontsize="x-small")
-    fig.suptitle(title or "transform P(q) over the sampled q (open markers: held out)")
+        for (i, j), ax in axes.items():
+            # points, not lines: the other coordinates vary between neighbouring samples
+            (line,) = ax.plot(x, P[:, i, j], linestyle="none", marker=".", ms=4, label=name)
+            if train is not None:
+                held = ~np.asarray(train)[order]
+                ax.plot(x[held], P[held, i, j], "o", mfc="none", color=line.get_color())
+    for k, ((i, j), ax) in enumerate(axes.items()):
+        ax.set_title(f"P[{i + 1},{j + 1}]", fontsize="small")
+        if k % cols == 0:
+            ax.set_ylabel("entry of P(q)")
+        if k + cols >= len(shown):  # the lowest panel of its column
+            ax.set_xlabel(xlabel)
+            ax.xaxis.set_tick_params(labelbottom=True)
+    axes[shown[0]].legend(fontsize="x-small")
+    what = "" if entries is None else f", {len(shown)} of its {n * n} entries"
+    fig.suptitle(title or f"transform P(q) over the sampled q{what} (open markers: held out)")
     return _save(fig, path)
 
 

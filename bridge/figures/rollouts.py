@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from softpinn.bridge.figures.figsave import save_for_print
+from softpinn.bridge.figures.large_arms import input_blocks, is_large, segment_count
 
 NETWORK = {"lagrangian": "Lagrangian", "hamiltonian": "Hamiltonian", "blackbox": "black box"}
 COLORS = {"lagrangian": "C0", "hamiltonian": "C3", "blackbox": "C1"}
@@ -80,13 +81,17 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     cols = min(3, n)
     rows = -(-n // cols)
     inputs = u is not None and np.asarray(u).ndim == 2 and np.asarray(u).shape[1] > 0
-    extra = 2 if inputs else 1
+    groups = _input_groups(np.asarray(u).shape[1], names, n) if inputs else []
+    u_rows = -(-len(groups) // cols) if len(groups) > 1 else 1
+    extra = 1 + u_rows if inputs else 1
     fig = plt.figure(figsize=(3.6 * cols + 0.6, 2.3 * rows + 2.6 + 1.6 * (extra - 1)),
                      layout="constrained")
     grid = fig.add_gridspec(rows + extra, cols, height_ratios=[1.0] * rows + [1.1] * extra)
     axes = [fig.add_subplot(grid[i // cols, i % cols]) for i in range(n)]
     err_ax = fig.add_subplot(grid[rows, :])
-    if inputs:
+    if inputs and len(groups) > 1:  # a large arm's: one panel per segment's inputs
+        _draw_input_groups(fig, grid, rows, cols, t, np.asarray(u, float), groups, err_ax)
+    elif inputs:
         u = np.asarray(u, float)
         u_ax = fig.add_subplot(grid[rows + 1, :], sharex=err_ax)
         for j in range(u.shape[1]):
@@ -156,6 +161,38 @@ def rollout_figure(t: np.ndarray, q_true: np.ndarray, predictions: Mapping[str, 
     save_for_print(fig, path, dpi=dpi)
     plt.close(fig)
     return path
+
+
+def _input_groups(m: int, names: Sequence[str], n: int) -> list[tuple[str, list[int]]]:
+    """The inputs of a large arm (:func:`bridge.figures.large_arms.is_large`) grouped by
+    segment, (title, indices) each; one group (today's single panel) for a small arm."""
+    if not is_large(n, m):
+        return [("", list(range(m)))]
+    segments = segment_count(names, n)
+    blocks = input_blocks(m, segments)
+    if segments > 1 and len(blocks) == segments:
+        return [(f"inputs of segment {s + 1} ({lab})", idx) for s, (lab, idx) in
+                enumerate(blocks)]
+    return [(f"inputs {lab}", idx) for lab, idx in blocks]
+
+
+def _draw_input_groups(fig, grid, rows: int, cols: int, t: np.ndarray, u: np.ndarray,
+                       groups, err_ax) -> None:
+    """One panel per group of inputs below the error panel, ``cols`` to a row, each input in a
+    colour of its own within its panel (a linestyle too past ten), named in the panel's
+    legend."""
+    styles = ("-", "--", ":", "-.")
+    for g, (title, idx) in enumerate(groups):
+        ax = fig.add_subplot(grid[rows + 1 + g // cols, g % cols], sharex=err_ax)
+        for c, j in enumerate(idx):
+            ax.plot(t[: len(u)], u[: len(t), j], styles[(c // 10) % len(styles)], lw=1.0,
+                    color=f"C{c % 10}", label=f"u{j + 1}")
+        ax.set_title(title, fontsize=8, loc="left")
+        if g % cols == 0:
+            ax.set_ylabel("inputs u")
+        ax.set_xlabel("t [s]")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncols=min(len(idx), 4), loc="upper right")
 
 
 def horizon_figure(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], *, title: str,
