@@ -414,3 +414,22 @@ def test_a_hanging_arm_recorded_with_z_up_imports_with_the_documented_conversion
         else:
             np.testing.assert_allclose(data.q[:, :2], expected, atol=1e-9)
             assert data.meta["import"]["max_twist_rad"] < 1e-9
+
+
+def test_a_one_coordinate_arm_imports(tmp_path):
+    """n = 1 (a one-mass spring-damper): p = M q̇ keeps its (N, 1) shape (TrueModel used to
+    squeeze every 1 x 1 output to a number, and the import failed in momentum)."""
+    spec = tmp_path / "one.toml"
+    spec.write_text('name = "one-mass"\nkind = "mass-spring-damper"\nmasses = [1.5]\n'
+                    'springs = [2.0]\ndampers = [0.3]\nactuation = [[1.0]]\n')
+    t = np.linspace(0, 1, 21)
+    f = write_csv(tmp_path / "one.csv", {"t": t, "u0": np.cos(t), "q0": np.sin(t)})
+    data = import_recordings([f], str(spec)).data
+    assert data.q.shape == data.p.shape == (21, 1)
+    np.testing.assert_allclose(data.p, 1.5 * data.qd, rtol=1e-14)
+    from softpinn.symbolic import TrueModel, load_spec
+
+    tm = TrueModel(load_spec(str(spec)), compiled=False)
+    assert np.shape(tm.G([0.1])) == (1,) and np.shape(tm.G([[0.1], [0.2]])) == (2, 1)
+    assert isinstance(tm.energy([0.1], [0.2]), float)
+    assert np.shape(tm.energy([[0.1], [0.2]], [[0.1], [0.2]])) == (2,)

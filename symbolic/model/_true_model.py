@@ -34,6 +34,9 @@ COMPILE_FROM = 100
 
 #: outputs returned as matrices even when a dimension is 1 (A with one input)
 _MATRICES = frozenset({"M", "M_inv", "D", "A", "C"})
+#: The scalar outputs (energies): a number, or (N,) in a batch. Every other output is a vector
+#: of n (or 2n) entries even where n = 1: (1,), or (N, 1) in a batch.
+_SCALARS = frozenset({"E", "T", "V"})
 
 
 class TrueModel:
@@ -143,7 +146,7 @@ class TrueModel:
         a = np.array(value, dtype=float).reshape(f.size1_out(j), f.size2_out(j), order="F")
         if f.name_out(j) in _MATRICES:
             return a
-        if a.shape == (1, 1):
+        if f.name_out(j) in _SCALARS:
             return float(a[0, 0])
         return a[:, 0]
 
@@ -157,7 +160,7 @@ class TrueModel:
             a = a.reshape(r, batch, c).transpose(1, 0, 2)
         if f.name_out(j) in _MATRICES:
             return a
-        if r == 1 and c == 1:
+        if f.name_out(j) in _SCALARS:
             return a[:, 0, 0]
         return a[:, :, 0]
 
