@@ -390,8 +390,10 @@ def initial_model(run_dir: str, model_config):
     theirs, ours = _network_of(run.model_config), _network_of(model_config)
     if theirs != ours:
         diff = sorted(k for k in ours if theirs.get(k) != ours[k])
+        hint = ("; the linear prior (--prior) is fitted on the training trajectories: give "
+                "this run the --prior and split of that one" if "prior" in diff else "")
         raise UserError(f"init: the run in {run_dir} has another network (differs in "
-                        f"{', '.join(diff)})")
+                        f"{', '.join(diff)}){hint}")
     if run.model_config == model_config:
         return run.model
     # the same network under this run's configuration (a size it does not use differs): its

@@ -211,3 +211,13 @@ def test_reproduce_takes_the_prior_for_the_experiment_and_cosserat_only():
     assert plain.prior == "none" and "prior" not in plain.to_dict()  # plan.json as before
     plan = make_experiment_plan(spec, ReproduceConfig("experiment", quick=True, prior="linear"))
     assert plan.to_dict()["prior"] == "linear"
+
+
+def test_init_from_a_run_with_another_prior_says_how_to_match_it(prior_run, pendulum, tmp_path):
+    stored = json.loads((prior_run / "config.json").read_text())
+    cfg = TrainConfig.from_dict({**stored["train"], "prior": "none", "init": str(prior_run),
+                                 "model": {**stored["train"]["model"], "prior": None}})
+    with pytest.raises(UserError,
+                       match=r"differs in prior\); the linear prior \(--prior\) is fitted"):
+        train(pendulum, cfg, tmp_path / "again")
+    assert not (tmp_path / "again").exists() or not any((tmp_path / "again").iterdir())
