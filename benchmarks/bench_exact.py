@@ -1,6 +1,7 @@
 """Benchmark the exact model in JAX (softpinn.bridge.exact) against CasADi; prints JSON.
 
-Parts (each in its own process, so that the XLA thread flags apply before jax is imported):
+Parts (each in its own process; every part, run alone or with the others, sets XLA's
+single-thread flags before jax is imported: one thread per XLA call):
 
 * ``forward``: forward dynamics per state for task5 (two spatial segments, n = 6) and planar
   PCC arms of 1 and 2 segments, batch 10,000, float64, on ONE core (``sched_setaffinity`` and
@@ -31,6 +32,15 @@ import time
 from pathlib import Path
 
 ONE_THREAD = "--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads=1"
+
+
+def with_one_thread(flags: str | None) -> str:
+    """``flags`` (an ``XLA_FLAGS`` value) with XLA's single-thread settings (replacing any other
+    value given for them). Every part sets them before it imports jax: one XLA call runs on one
+    thread (the simulate part runs two calls at once, on two threads)."""
+    ours = ONE_THREAD.split()
+    keys = {w.split("=", 1)[0] for w in ours}
+    return " ".join([w for w in (flags or "").split() if w.split("=", 1)[0] not in keys] + ours)
 
 
 def planar_spec(segments: int):
@@ -205,6 +215,7 @@ def part_simulate(args) -> dict:
                   SimulationConfig(integrator="cvodes", duration=args.duration, rate=50.0))
     out = {"model": "task5", "trajectories": K, "duration_s": args.duration, "dt": args.dt,
            "steps": int(round(args.duration / args.dt)), "threads": 2,
+           "xla_flags": os.environ.get("XLA_FLAGS"),
            "load_average_before": os.getloadavg()}
     xc = None
     if "c" in args.sim_backends:
@@ -270,6 +281,9 @@ def main(argv=None) -> int:
     ap.add_argument("--dt", type=float, default=0.001)
     ap.add_argument("--sim-backends", default="c,jax", help="simulate part: c, jax or both")
     args = ap.parse_args(argv)
+    if "jax" in sys.modules:
+        raise SystemExit("bench_exact: jax was imported before XLA's thread flags were set")
+    os.environ["XLA_FLAGS"] = with_one_thread(os.environ.get("XLA_FLAGS"))
     if args.part == "forward":
         print(json.dumps(part_forward(args), indent=1))
         return 0
@@ -277,8 +291,8 @@ def main(argv=None) -> int:
         print(json.dumps(part_simulate(args), indent=1))
         return 0
     res = {}
-    for part, flags in (("forward", ONE_THREAD), ("simulate", "")):
-        env = dict(os.environ, XLA_FLAGS=flags)
+    for part in ("forward", "simulate"):
+        env = dict(os.environ)  # with the single-thread flags (above)
         cmd = [sys.executable, __file__, "--part", part, "--batch", str(args.batch),
                "--segments", str(args.segments), "--trajectories", str(args.trajectories),
                *(["--xla-segments"] if args.xla_segments else []),
