@@ -39,12 +39,15 @@ def prepare(out: Path) -> dict:
     jax.config.update("jax_enable_x64", True)
     from softpinn.bridge.exact.serialize import function_data
     from softpinn.symbolic import TrueModel
+    from softpinn.symbolic.codegen._kernel_source import cuda_source
     from softpinn.symbolic.spec._spec import load_spec
 
     out.mkdir(parents=True, exist_ok=True)
     tm = TrueModel(TASK)
     for name, key in (("forward", "forward"), ("ode", "ode")):
         (out / f"{name}.json").write_text(json.dumps(function_data(tm.functions[key])))
+    # the C kernel's straight-line code as a CUDA kernel, one thread per state (NVRTC there)
+    (out / "forward.cu").write_text(cuda_source(tm.functions["forward"], "forward"))
     rng = np.random.default_rng(0)
     n, m = tm.n, tm.m
     q = rng.uniform(-0.3, 0.3, (64, n))
@@ -132,7 +135,77 @@ def _best(fn, repeat=5):
     return min(times)
 
 
-def run(folder: Path, sizes=(10_000, 100_000, 1_000_000), counts=(1_000, 10_000)) -> dict:
+def run_cuda(folder: Path, sizes, res: dict, blocks=(64, 128, 256),
+             variants=((), ("-maxrregcount=128",))) -> None:
+    """``forward.cu`` (:func:`softpinn.symbolic.codegen._kernel_source.cuda_source`) compiled by
+    NVRTC through CuPy, one thread per state, float64: per-state time (best of 20 launches,
+    CUDA events, after a warm-up) for each NVRTC option variant and block size, and the
+    largest difference to CasADi."""
+    import cupy as cp
+
+    ref = np.load(folder / "reference.npz")
+    n, m = ref["q"].shape[1], ref["u"].shape[1]
+    source = (folder / "forward.cu").read_text()
+    out: dict = {"variants": {}}
+    rng = np.random.default_rng(1)
+    data = {size: [rng.uniform(-0.2, 0.2, (size, k)) + (0.1 if k == n else 0)
+                   for k in (n, n, m)] for size in sizes}
+
+    def launcher(kernel, arrays, count, block):
+        ins = [cp.ascontiguousarray(cp.asarray(a, cp.float64).T) for a in arrays]  # (k, N)
+        res_ = cp.empty((n, count), cp.float64)
+        argp = cp.asarray([a.data.ptr for a in ins], cp.uint64)
+        resp = cp.asarray([res_.data.ptr], cp.uint64)
+        grid = ((count + block - 1) // block,)
+
+        def call():
+            kernel(grid, (block,), (np.int64(count), np.int64(count), argp, resp))
+        call.keep = (ins, argp, resp)
+        return call, res_
+
+    for options in variants:
+        name = " ".join(options) or "default"
+        t0 = time.perf_counter()
+        kernel = cp.RawModule(code=source, options=("--std=c++17", *options)).get_function(
+            "forward")
+        row = {"compile_s": time.perf_counter() - t0,
+               "registers": getattr(kernel, "num_regs", None),
+               "local_bytes": getattr(kernel, "local_size_bytes", None)}
+        call, got = launcher(kernel, [ref["q"], ref["qd"], ref["u"]], ref["q"].shape[0], 128)
+        call()
+        cp.cuda.Device().synchronize()
+        got = cp.asnumpy(got).T
+        row["max_rel_error_vs_casadi"] = float(np.abs(got - ref["qdd"]).max()
+                                               / max(1.0, np.abs(ref["qdd"]).max()))
+        for size in sizes:
+            for block in blocks:
+                call, _ = launcher(kernel, data[size], size, block)
+                call()
+                cp.cuda.Device().synchronize()
+                start, stop = cp.cuda.Event(), cp.cuda.Event()
+                best = float("inf")
+                for _ in range(20):
+                    start.record()
+                    call()
+                    stop.record()
+                    stop.synchronize()
+                    best = min(best, cp.cuda.get_elapsed_time(start, stop) / 1e3)
+                row[f"{size}/{block}"] = {"best_s": best, "ns_per_state": 1e9 * best / size}
+                print("cuda", name, size, block, row[f"{size}/{block}"], file=sys.stderr,
+                      flush=True)
+        out["variants"][name] = row
+        res["cuda"] = out
+        _save(res)
+    for size in sizes:  # the best launch of each batch size
+        rows = [(v[f"{size}/{b}"]["ns_per_state"], name, b) for name, v in out["variants"].items()
+                for b in blocks]
+        ns, name, b = min(rows)
+        out[str(size)] = {"ns_per_state": ns, "variant": name, "block": b}
+    res["cuda"] = out
+
+
+def run(folder: Path, sizes=(10_000, 100_000, 1_000_000), counts=(1_000, 10_000),
+        parts=("forward", "cuda", "simulate")) -> dict:
     import jax
     import jax.numpy as jnp
 
@@ -143,9 +216,14 @@ def run(folder: Path, sizes=(10_000, 100_000, 1_000_000), counts=(1_000, 10_000)
     dev = jax.devices()[0]
     res = {"device": str(dev), "platform": dev.platform, "jax": jax.__version__,
            "forward": {}, "simulate": {}}
+    if "cuda" in parts:
+        try:
+            run_cuda(folder, sizes, res)
+        except ImportError as exc:
+            res["cuda"] = {"error": f"no CuPy here ({exc})"}
     f = ProgramFunction(json.loads((folder / "forward.json").read_text()))
     n, m = ref["q"].shape[1], ref["u"].shape[1]
-    for dtype in (jnp.float64, jnp.float32):
+    for dtype in (jnp.float64, jnp.float32) if "forward" in parts else ():
         fwd = jax.jit(jax.vmap(lambda q, qd, u: f(q, qd, u)[0][:, 0]))
         got = np.asarray(fwd(*(jnp.asarray(ref[k], dtype) for k in ("q", "qd", "u"))))
         err = float(np.abs(got - ref["qdd"]).max() / max(1.0, np.abs(ref["qdd"]).max()))
@@ -168,7 +246,7 @@ def run(folder: Path, sizes=(10_000, 100_000, 1_000_000), counts=(1_000, 10_000)
     ode = ProgramFunction(json.loads((folder / "ode.json").read_text()))
     sim = {k[4:]: ref[k] for k in ref.files if k.startswith("sim_")}
     program = sim_program(ode)
-    for count in counts:
+    for count in counts if "simulate" in parts else ():
         part = {k: jnp.asarray(v[:count], jnp.float64) for k, v in sim.items()}
         t0 = time.perf_counter()
         compiled = program.lower(part).compile()
@@ -202,11 +280,15 @@ def main(argv=None) -> int:
                    help="batch sizes of the forward dynamics (run)")
     p.add_argument("--trajectories", type=int, nargs="*", default=[1_000, 10_000],
                    help="simulation batch sizes (run; at most 10,000)")
+    p.add_argument("--parts", nargs="+", choices=("forward", "cuda", "simulate"),
+                   default=["forward", "cuda", "simulate"],
+                   help="run: the JAX replay's forward dynamics, the CUDA kernel (CuPy), the "
+                        "JAX simulations")
     a = p.parse_args(argv)
     global SAVE
     SAVE = a.out
     res = (prepare(a.folder) if a.step == "prepare"
-           else run(a.folder, tuple(a.sizes), tuple(a.trajectories)))
+           else run(a.folder, tuple(a.sizes), tuple(a.trajectories), tuple(a.parts)))
     text = json.dumps(res, indent=1)
     print(text)
     if a.out:

@@ -86,3 +86,21 @@ def test_shared_reciprocals_keep_casadis_special_values():
     fin = np.isfinite(want)
     assert np.array_equal(got[~fin & ~np.isnan(want)], want[~fin & ~np.isnan(want)])
     np.testing.assert_allclose(got[fin], want[fin], rtol=1e-15, atol=0)
+
+
+def test_the_cuda_kernel_is_the_c_kernel_with_one_thread_per_state():
+    """bench_gpu.py's CUDA kernel (NVRTC on a GPU machine; no CUDA compiler here): the same
+    straight-line body as the C kernel, the state loop replaced by the thread's index."""
+    import casadi as ca
+
+    from softpinn.symbolic.codegen._kernel_source import cuda_source, kernel_source
+
+    x = ca.SX.sym("x", 2)
+    f = ca.Function("f", [x], [ca.vertcat(ca.sin(x[0]) / x[1], x[0] / x[1] + ca.cos(x[1]))])
+    c, cu = kernel_source(f, "f"), cuda_source(f, "f")
+    assert cu.startswith('extern "C" __global__ void f(long n, long ld, const double* const* '
+                         "arg, double* const* res) {")
+    assert "long i = (long)blockIdx.x * blockDim.x + threadIdx.x;\n  if (i < n) {" in cu
+    assert "#pragma omp" not in cu and "restrict " not in cu and "SOFTPINN_ALIGNED" not in cu
+    body = lambda s: s[s.index("    double w0"):]  # noqa: E731
+    assert body(cu) == body(c)

@@ -169,6 +169,25 @@ def kernel_source(f: ca.Function, name: str) -> str:
     return "\n".join(lines)
 
 
+def cuda_source(f: ca.Function, name: str) -> str:
+    """The kernel of :func:`kernel_source` as CUDA C++: ``extern "C" __global__ void
+    name(long n, long ld, const double* const* arg, double* const* res)``, one thread per
+    state (i = blockIdx.x * blockDim.x + threadIdx.x), the same straight-line code and layout
+    (input k's nonzero j of state i at ``arg[k][j*ld + i]``: consecutive threads read
+    consecutive addresses). For a GPU machine without CasADi: compile it there with NVRTC (e.g.
+    ``cupy.RawModule``; ``benchmarks/bench_gpu.py``)."""
+    src = kernel_source(f, name)
+    src = src.replace(f"void {name}(", f'extern "C" __global__ void {name}(', 1)
+    src = src.replace("const double* restrict", "const double* __restrict__")
+    src = src.replace("double* restrict", "double* __restrict__")
+    src = src.replace("SOFTPINN_ALIGNED(", "(")
+    loop = "  #pragma omp simd\n  for (long i = 0; i < n; ++i) {"
+    if loop not in src:  # pragma: no cover - kernel_source's loop changed
+        raise KernelError(f"{f.name()}: no state loop to map onto threads")
+    return src.replace(loop, "  long i = (long)blockIdx.x * blockDim.x + threadIdx.x;\n"
+                             "  if (i < n) {", 1)
+
+
 #: RK4 over many trajectories, in blocks of BLOCK lanes (struct of arrays inside a block); the
 #: arithmetic is that of :mod:`softpinn.bridge.exact.simulate`: stage i evaluates
 #: f(x + (c_i dt) k_{i-1}, t + c_i dt), acc += b_i k_i, x += dt acc; t = s / rate + j dt.
