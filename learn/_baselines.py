@@ -33,8 +33,8 @@ from softpinn.learn._data import Dataset
 from softpinn.learn._splits import split_trajectories
 
 __all__ = ["ARX", "BASELINE_KINDS", "LinearSecondOrder", "NoMotion", "RIDGE",
-           "baseline_from_dict", "fit_arx", "fit_baseline", "fit_linear_second_order",
-           "trajectory_arrays"]
+           "baseline_from_dict", "checked_array", "fit_arx", "fit_baseline",
+           "fit_linear_second_order", "trajectory_arrays"]
 
 #: The baseline kinds, as ``to_dict()["kind"]`` names them.
 BASELINE_KINDS = ("arx", "linear2", "no_motion")
@@ -46,17 +46,22 @@ STEP_RTOL = 1e-3
 FORMAT = 1
 
 
-def _arr(d: Mapping, key: str, shape: tuple, kind: str) -> np.ndarray:
+def checked_array(d: Mapping, key: str, shape: tuple, what: str) -> np.ndarray:
+    """``d[key]`` as a finite float64 array of ``shape``, else a one-line :class:`UserError`
+    that starts with ``what`` (a stored baseline's or prior's JSON)."""
     try:
         a = np.asarray(d[key], dtype=np.float64)
     except KeyError:
-        raise UserError(f"baseline {kind}: missing '{key}'") from None
+        raise UserError(f"{what}: missing '{key}'") from None
     except (TypeError, ValueError):
-        raise UserError(f"baseline {kind}: '{key}' must hold numbers") from None
+        raise UserError(f"{what}: '{key}' must hold numbers") from None
     if a.shape != shape or not np.all(np.isfinite(a)):
-        raise UserError(f"baseline {kind}: '{key}' must be finite of shape {shape}, "
-                        f"got {a.shape}")
+        raise UserError(f"{what}: '{key}' must be finite of shape {shape}, got {a.shape}")
     return a
+
+
+def _arr(d: Mapping, key: str, shape: tuple, kind: str) -> np.ndarray:
+    return checked_array(d, key, shape, f"baseline {kind}")
 
 
 def trajectory_arrays(source, traj_ids=None, *, need=("t", "q", "u")) -> list[dict]:

@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from softpinn.errors import UserError
-from softpinn.learn._baselines import fit_linear_second_order
+from softpinn.learn._baselines import checked_array, fit_linear_second_order
 from softpinn.learn._nets import (
     CholeskyField,
     ConstantCholesky,
@@ -49,16 +49,7 @@ _KEYS = ("K", "D", "B", "c")
 
 
 def _matrix(d: dict, key: str, shape: tuple[int, ...]) -> tuple:
-    try:
-        a = np.asarray(d[key], dtype=np.float64)
-    except KeyError:
-        raise UserError(f"prior: missing '{key}'") from None
-    except (TypeError, ValueError):
-        raise UserError(f"prior: '{key}' must hold numbers") from None
-    if a.shape != shape:
-        raise UserError(f"prior: '{key}' must be of shape {shape}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise UserError(f"prior: '{key}' holds NaN or inf")
+    a = checked_array(d, key, shape, "prior")
     return tuple(a.tolist()) if a.ndim == 1 else tuple(tuple(r) for r in a.tolist())
 
 

@@ -72,7 +72,7 @@ def test_the_prior_has_no_trainable_parameter():
     ({"prior": "{"}, "prior must be JSON text"),
     ({"prior": json.dumps({"kind": "cubic"})}, "expected {'kind': 'linear'"),
     ({"prior": json.dumps({"kind": "linear", "K": [[1.0]], "D": [[0.0]], "B": [[1.0]],
-                           "c": [0.0]})}, "'K' must be of shape (3, 3)"),
+                           "c": [0.0]})}, "'K' must be finite of shape (3, 3)"),
     ({"input_form": "known", "known_input": json.dumps({"kind": "constant",
                                                         "value": [[1.0] * M] * N})},
      "a linear prior and a known input matrix"),
