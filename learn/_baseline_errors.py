@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from softpinn.errors import UserError
-from softpinn.learn._baselines import trajectory_arrays
 from softpinn.learn._data import Dataset, trajectories
 from softpinn.learn._predict import _reset_mask, check_rollout_request
+from softpinn.learn._trajectories import trajectory_arrays
 
 __all__ = ["BaselineErrors", "RANGE_MARGIN", "range_box", "rollout_errors"]
 

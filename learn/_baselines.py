@@ -29,8 +29,7 @@ import numpy as np
 import scipy.linalg
 
 from softpinn.errors import UserError
-from softpinn.learn._data import Dataset
-from softpinn.learn._splits import split_trajectories
+from softpinn.learn._trajectories import trajectory_arrays
 
 __all__ = ["ARX", "BASELINE_KINDS", "LinearSecondOrder", "NoMotion", "RIDGE",
            "baseline_from_dict", "checked_array", "fit_arx", "fit_baseline",
@@ -59,49 +58,6 @@ def checked_array(d: Mapping, key: str, shape: tuple, what: str) -> np.ndarray:
         raise UserError(f"{what}: '{key}' must be finite of shape {shape}, got {a.shape}")
     return a
 
-
-def _arr(d: Mapping, key: str, shape: tuple, kind: str) -> np.ndarray:
-    return checked_array(d, key, shape, f"baseline {kind}")
-
-
-def trajectory_arrays(source, traj_ids=None, *, need=("t", "q", "u")) -> list[dict]:
-    """Trajectories as dicts of float64 arrays t (T,), q, qd, qdd (T, n), u (T, m), id, from a
-    :class:`Dataset` (``traj_ids``; None: the training trajectories of the split ``train``
-    uses by default) or from dicts (``learn.trajectories``'s: ``x`` = (q, q̇) gives qd)."""
-    if isinstance(source, Dataset):
-        ids = split_trajectories(source)[0] if traj_ids is None else traj_ids
-        out = []
-        for tid in np.asarray(ids).tolist():
-            rows = source.indices(int(tid))
-            if rows.size == 0:
-                raise UserError(f"trajectory {tid} is not in {source.path}")
-            out.append({"id": int(tid), "t": source.t[rows], "q": source.q[rows],
-                        "qd": source.qd[rows], "qdd": source.qdd[rows], "u": source.u[rows]})
-        return out
-    if isinstance(source, Mapping):
-        source = [source]
-    out = []
-    for i, tr in enumerate(source):
-        d = {"id": int(tr.get("id", i))}
-        for key in ("t", "q", "qd", "qdd", "u"):
-            if key in tr:
-                d[key] = np.asarray(tr[key], dtype=np.float64)
-        if "qd" not in d and "x" in tr and "q" in d:
-            d["qd"] = np.asarray(tr["x"], dtype=np.float64)[:, d["q"].shape[1]:2 * d["q"].shape[1]]
-        missing = [k for k in need if k not in d]
-        if missing:
-            raise UserError(f"trajectory {d['id']}: missing {', '.join(missing)}")
-        out.append(d)
-    if not out:
-        raise UserError("baselines need at least one trajectory")
-    n, m = out[0]["q"].shape[1], out[0]["u"].shape[1]
-    for d in out:
-        T = d["t"].shape[0]
-        if d["q"].shape != (T, n) or d["u"].shape != (T, m) or any(
-                d[k].shape != (T, n) for k in ("qd", "qdd") if k in d):
-            raise UserError(f"trajectory {d['id']}: needs q, qd, qdd ({T}, {n}) and u ({T}, {m})"
-                            f" like the first, got q {d['q'].shape}, u {d['u'].shape}")
-    return out
 
 
 def _lstsq(X: np.ndarray, Y: np.ndarray, ridge: float) -> tuple[np.ndarray, np.ndarray, int]:
@@ -221,9 +177,9 @@ class ARX:
         dt = d.get("dt")
         if isinstance(dt, bool) or not isinstance(dt, int | float) or not dt > 0:
             raise UserError(f"baseline arx: 'dt' must be a positive number, got {dt!r}")
-        return cls(_arr(d, "A", (p, n, n), "arx"), _arr(d, "B", (n, m), "arx"),
-                   _arr(d, "c", (n,), "arx"), float(dt), _arr(d, "q_low", (n,), "arx"),
-                   _arr(d, "q_high", (n,), "arx"), dict(d.get("info", {})))
+        g = lambda key, shape: checked_array(d, key, shape, "baseline arx")  # noqa: E731
+        return cls(g("A", (p, n, n)), g("B", (n, m)), g("c", (n,)), float(dt),
+                   g("q_low", (n,)), g("q_high", (n,)), dict(d.get("info", {})))
 
 
 @dataclass(frozen=True, eq=False)
@@ -321,7 +277,7 @@ class LinearSecondOrder:
     @classmethod
     def from_dict(cls, d: Mapping) -> LinearSecondOrder:
         n, m = (_int(d, k, "linear2") for k in ("n", "m"))
-        g = lambda key, shape: _arr(d, key, shape, "linear2")
+        g = lambda key, shape: checked_array(d, key, shape, "baseline linear2")  # noqa: E731
         return cls(g("A_q", (n, n)), g("A_v", (n, n)), g("B_u", (n, m)), g("c", (n,)),
                    g("q_low", (n,)), g("q_high", (n,)), str(d.get("integrator", "expm")),
                    dict(d.get("info", {})))
@@ -359,8 +315,8 @@ class NoMotion:
     @classmethod
     def from_dict(cls, d: Mapping) -> NoMotion:
         n, m = (_int(d, k, "no_motion") for k in ("n", "m"))
-        return cls(n, m, _arr(d, "q_low", (n,), "no_motion"),
-                   _arr(d, "q_high", (n,), "no_motion"), dict(d.get("info", {})))
+        g = lambda key: checked_array(d, key, (n,), "baseline no_motion")  # noqa: E731
+        return cls(n, m, g("q_low"), g("q_high"), dict(d.get("info", {})))
 
 
 def _int(d: Mapping, key: str, kind: str) -> int:
