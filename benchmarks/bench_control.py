@@ -9,8 +9,13 @@ the RK4 sub-steps, and per reference the tip error (RMS, max), failures, how man
 were lifted or redone exactly, and the solve times (median, mean, 95th percentile, max, in ms,
 over every round), with the machine and its load average before and after.
 
+The references are ``softpinn control``'s defaults: the radius shrunk until the arm can hold
+every target with its bounded inputs (issue 46), ``--duration`` seconds each (default: the
+whole circle and four steps).
+
 Usage: ``python benchmarks/bench_control.py [--model task5] [--runs RUN ...]
-[--offset-free 0.3] [--offset-free-rate 0] [--rounds 2] [--modes exact frozen lifted]``
+[--offset-free 0.3] [--offset-free-rate 0] [--rounds 2] [--modes exact frozen lifted]
+[--duration S] [--stiffness HR]``
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--modes", nargs="+", default=["exact", "frozen", "lifted"])
     ap.add_argument("--no-true", action="store_true")
+    ap.add_argument("--duration", type=float, default=None)
+    ap.add_argument("--stiffness", type=float, default=1.5)
     args = ap.parse_args()
     if args.runs:
         import jax
@@ -53,7 +60,7 @@ def main() -> None:
         tip_output,
     )
     from softpinn.bridge.control.compare import _references, machine
-    from softpinn.bridge.control.references import default_radius
+    from softpinn.bridge.control.references import default_radius, reachable_radius
     from softpinn.symbolic.model._true_model import TrueModel
     from softpinn.symbolic.spec._spec import load_spec
 
@@ -75,14 +82,14 @@ def main() -> None:
         for mode in args.modes:
             cfg = MPCConfig(sensitivities=mode, offset_free=args.offset_free,
                             offset_free_rate=args.offset_free_rate,
-                            u_min=tuple(lo), u_max=tuple(hi))
+                            stiffness=args.stiffness, u_min=tuple(lo), u_max=tuple(hi))
             t0 = time.perf_counter()
             mpc = MPC(pm, cfg, operating_point=(qc, np.zeros(spec.n), uc))
             controllers[pm.name, mode] = (mpc, time.perf_counter() - t0)
     cfg = next(iter(controllers.values()))[0].config
     refs = _references(tm, output, ["circle", "step"], dt=cfg.dt, horizon=cfg.horizon,
-                       center=center, radius=default_radius(spec), period=4.0, hold=1.0,
-                       duration=None)
+                       center=center, period=4.0, hold=1.0, duration=args.duration,
+                       radius=reachable_radius(tm, center, default_radius(spec), lo, hi))
     plant_fn = plant(tm, cfg.dt)
     runs = {key: {r: [] for r in refs} for key in controllers}
     for _ in range(args.rounds):

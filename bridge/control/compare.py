@@ -70,6 +70,7 @@ from softpinn.bridge.control.references import (
     default_center,
     default_radius,
     equilibrium,
+    fitted_radius,
     step_reference,
     step_targets,
 )
@@ -270,6 +271,8 @@ def _compare(model, runs, out, config, *, names, compiler, force, log, progress,
         if config.include_linear:
             models.append(linearised(tm, np.concatenate([qc, np.zeros(spec.n)]), uc, output))
         act = _plant_actuator(models, runs)
+        radius = fitted_radius(tm, center, radius, *input_bounds(mpc_config, spec.m),
+                               given=config.radius is not None, say=say)
         refs = _references(tm, output, config.references, dt=mpc_config.dt,
                            horizon=mpc_config.horizon + delay_steps(act, spec.m, mpc_config.dt),
                            center=center, radius=radius, period=config.period,

@@ -35,7 +35,10 @@ def sqp_functions(mod: PredictionModel, cfg: MPCConfig, u_ref: np.ndarray
     n, m, N = mod.n, mod.m, cfg.horizon
     nx, ny = mod.nx, mod.output.size1_out(0)  # (q, q̇) and any actuator lag states
     frozen = cfg.sensitivities in ("frozen", "lifted")
-    stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps, frozen=frozen)
+    # one (f, ∂f) pair for every Function below: the C holds the Jacobian once (issue 46)
+    fields = _field_functions(mod.field, mod.jacobian)
+    stage, roll = _stage_functions(mod.field, cfg.dt, cfg.substeps, frozen=frozen,
+                                   functions=fields)
     xs = ca.SX.sym("x", nx)
     ys = mod.output(xs[:n])
     out = ca.Function("mpc_output", [xs], [ys, ca.jacobian(ys, xs)])
@@ -99,13 +102,14 @@ def sqp_functions(mod: PredictionModel, cfg: MPCConfig, u_ref: np.ndarray
     fns = {"gn": gn, "cost": cost, "predict": predict, "step": step}
     if frozen:  # the exact step, for an iteration the frozen one could not make
         fns["gn_exact"] = gauss_newton("mpc_gn_exact",
-                                       _stage_functions(mod.field, cfg.dt, cfg.substeps)[0])
+                                       _stage_functions(mod.field, cfg.dt, cfg.substeps,
+                                                        functions=fields)[0])
     if cfg.sensitivities == "lifted":
         # the Gauss-Newton step about the last plan's predicted states, shifted by one
         # step: no rollout, the states corrected to first order for the new measurement
         # (δ₀ = x0 − xb₀) and the change of the disturbance estimate (dd):
         # x_{k+1} ≈ xb_{k+1} + δ_{k+1}, δ_{k+1} = A_k δ_k + dd
-        fj, _ = _field_functions(mod.field)
+        fj = fields[0]
         h = cfg.dt / cfg.substeps
         Xb, dd = ca.MX.sym("Xb", nx, N), ca.MX.sym("dd", nx)
         delta, stages = x0 - Xb[:, 0], []

@@ -56,6 +56,9 @@ class PredictionModel:
     output: ca.Function
     info: dict = field(default_factory=dict)
     actuator: Actuator | None = None
+    #: (x, u) -> (ẋ, ∂ẋ/∂(x, u)) when the source knows a cheaper form than differentiating
+    #: ``field`` (the true model: :func:`_true_jacobian`); None: CasADi's jacobian of ``field``
+    jacobian: ca.Function | None = None
 
     @property
     def nx(self) -> int:
@@ -255,10 +258,60 @@ def from_run(path, output: ca.Function, *, export_dir, name: str | None = None,
     return model
 
 
+def _true_jacobian(true_model, ode: ca.Function) -> ca.Function:
+    """(x, u) -> (ẋ, ∂ẋ/∂(x, u)) of the PCC model's ODE through its inverse dynamics: with
+    τ(q, q̇, q̈) = M(q) q̈ + C(q, q̇) q̇ + G(q) + D q̇ (eq. 4 without the input) and
+    q̈ = M⁻¹ (A(q) u − ...) the forward dynamics,
+
+        ∂q̈/∂(q, q̇) = −M⁻¹ ∂(τ − A u)/∂(q, q̇) at q̈ fixed,    ∂q̈/∂u = M⁻¹ A,
+
+    the implicit-function form: no derivative of the symbolic factorisation of M, which
+    CasADi's jacobian of the ODE carries. For a 3-segment arm 357 k instructions instead of
+    581 k (issue 46; the same Jacobian to rounding, tests/test_control_large.py). None
+    (differentiate the ODE) where that is smaller (one segment) or the form does not hold."""
+    n, m = true_model.n, true_model.m
+    fns = {k: _sx(true_model.functions[k]) for k in ("inverse", "A", "M")}
+    x, u, a = ca.SX.sym("x", 2 * n), ca.SX.sym("u", m), ca.SX.sym("a", n)
+    q, qd = x[:n], x[n:]
+    f = ode(x, u)
+    A = fns["A"](q)
+    residual = fns["inverse"](q, qd, a) - ca.mtimes(A, u)
+    dres = ca.Function("dres", [x, u, a], [ca.jacobian(residual, x)])
+    M = fns["M"](q)
+    Jx = -ca.solve(M, dres(x, u, f[n:]))
+    Ju = ca.solve(M, A)
+    J = ca.vertcat(ca.horzcat(ca.SX.zeros(n, n), ca.SX.eye(n), ca.SX.zeros(n, m)),
+                   ca.horzcat(Jx, Ju))
+    # the form holds where the ODE's q̈ solves τ(q, q̇, q̈) = A u: checked at a few states,
+    # else (a model whose ODE is more than eq. 4) CasADi's jacobian of the ODE
+    res_fn = ca.Function("residual", [x, u, a], [residual])
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        xs = np.concatenate([rng.uniform(-1e-2, 1e-2, n), rng.uniform(-0.1, 0.1, n)])
+        us = rng.uniform(-1.0, 1.0, m)
+        a0 = np.asarray(ode(xs, us)).ravel()[n:]
+        r = np.asarray(res_fn(xs, us, a0)).ravel()
+        scale = np.max(np.abs(np.asarray(fns["M"](xs[:n])) @ a0)) + 1.0
+        if not np.all(np.isfinite(r)) or np.max(np.abs(r)) > 1e-8 * scale:
+            return None
+    implicit = ca.Function("mpc_field_jac", [x, u], [f, J])
+    # the smaller of the two: the implicit form pays off from two segments on (146 k
+    # against 208 k instructions); for one segment (41 k against 39 k) it does not
+    plain = ca.Function("mpc_field_jac", [x, u], [f, ca.jacobian(f, ca.vertcat(x, u))])
+    return implicit if implicit.n_instructions() < plain.n_instructions() else None
+
+
 def from_true(true_model, output: ca.Function, name: str = "true") -> PredictionModel:
-    """The exact model (``softpinn.symbolic.TrueModel``): its ``ode`` (x = (q, q̇), u)."""
-    return PredictionModel(name, true_model.n, true_model.m, _sx(true_model.functions["ode"]),
-                           _identity_state, output, {"source": "true", "kind": "true"})
+    """The exact model (``softpinn.symbolic.TrueModel``): its ``ode`` (x = (q, q̇), u), with
+    its Jacobian through the inverse dynamics for a PCC arm (:func:`_true_jacobian`)."""
+    ode = _sx(true_model.functions["ode"])
+    jac = _true_jacobian(true_model, ode) if true_model.spec.kind in _PCC else None
+    return PredictionModel(name, true_model.n, true_model.m, ode, _identity_state, output,
+                           {"source": "true", "kind": "true"}, jacobian=jac)
+
+
+#: the model kinds whose ODE is eq. 4's q̈ = M⁻¹ (A u − C q̇ − G − D q̇) with these Functions
+_PCC = ("spatial-pcc", "planar-pcc")
 
 
 def linearised(true_model, x0, u0, output: ca.Function, name: str = "linearised"):

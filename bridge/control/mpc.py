@@ -43,6 +43,7 @@ import casadi as ca
 import numpy as np
 
 from softpinn.bridge.control.actuation import delay_steps, lagged_inputs, settled
+from softpinn.bridge.control.blas import one_blas_thread
 from softpinn.bridge.control.config import QP_SOLVERS, SENSITIVITIES, SOLVERS, MPCConfig
 from softpinn.bridge.control.failures import cause
 from softpinn.bridge.control.gauss_newton import sqp_functions
@@ -400,9 +401,14 @@ class MPC:
 
     def solve(self, q, qd, reference, u_prev):
         """The first input of the plan from the measured (q, q̇), and what the solve did."""
-        R = self._reference(reference)
-        u_prev = np.asarray(u_prev, float).reshape(self.m)
+        R, u_prev = self._reference(reference), np.asarray(u_prev, float).reshape(self.m)
         t0 = time.perf_counter()
+        with one_blas_thread():  # issue 46: numpy's threads cost 28x on busy cores (.blas)
+            u, info = self._solve(q, qd, R, u_prev)
+        info["seconds"] = time.perf_counter() - t0
+        return u, info
+
+    def _solve(self, q, qd, R, u_prev):
         x0 = self._measured(q, qd, u_prev)
         # the command that reaches the actuator in this step: one sent D steps ago
         arriving = self._sent[0] if self.delay else None
@@ -441,5 +447,4 @@ class MPC:
             self._y = a * self._y + (1 - a) * np.asarray(arriving, float)[self._lagged]
         if self.delay:
             self._sent = [*self._sent[1:], np.asarray(u, float).copy()]
-        info["seconds"] = time.perf_counter() - t0
         return u, info

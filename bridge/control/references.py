@@ -27,7 +27,12 @@ from softpinn.errors import UserError
 from softpinn.symbolic import data_config, draw_trajectories, plan_dataset
 
 __all__ = ["circle_reference", "circle_start", "step_reference", "equilibrium", "step_targets",
-           "default_center", "default_radius", "default_input_bounds", "check_lengths"]
+           "default_center", "default_radius", "default_input_bounds", "check_lengths",
+           "reachable_radius", "fitted_radius"]
+
+#: the share of the input box's width on each side that a default reference's holding inputs
+#: keep clear of (room for the transients between them)
+INPUT_MARGIN = 0.1
 
 
 def check_lengths(spec, center, radius: float) -> None:
@@ -52,11 +57,40 @@ def check_lengths(spec, center, radius: float) -> None:
                             f"> 0 (L = {L:g} m); give a radius < {c[k] + L:g}")
 
 
-def _data_range(spec):
+_last_plan: dict = {}
 
+
+def _quiet_plan(spec):
+    """``plan_dataset(spec)`` without its note on the physics defaults (``simulate``'s to say);
+    the last spec's is kept (the centre, the radius and the bounds each ask it, and its physics
+    defaults take seconds for a 3-segment arm)."""
+    key = repr(spec)
+    if key in _last_plan:
+        return _last_plan[key]
+    quiet = logging.getLogger("softpinn.symbolic")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
     try:
-        cfg = data_config(spec)
+        plan = plan_dataset(spec)
+    finally:
+        quiet.setLevel(level)
+    _last_plan.clear()
+    _last_plan[key] = plan
+    return plan
+
+
+def _data_range(spec):
+    """(q0_low, q0_high) of the data ``softpinn simulate`` makes for ``spec``: its ``[data]``
+    table's, or for a PCC arm without one the defaults it computes from the physics (issue 46:
+    a spec from ``softpinn init`` has none, and a fixed radius of 0.1 in q took a tendon arm's
+    circle to a bend of 5 rad, a rest state 100 times beyond the input bounds); None where
+    neither gives one (other models without a table keep zeros and 0.1)."""
+    physics = not spec.data and spec.kind in ("spatial-pcc", "planar-pcc")
+    try:
+        cfg = _quiet_plan(spec).data if physics else data_config(spec)
     except Exception:  # noqa: BLE001 - a spec without a usable [data] table: no range
+        return None
+    if cfg.q0_low is None or cfg.q0_high is None:
         return None
     lo, hi = np.asarray(cfg.q0_low, float), np.asarray(cfg.q0_high, float)
     if lo.size != spec.n or hi.size != spec.n:
@@ -65,13 +99,15 @@ def _data_range(spec):
 
 
 def default_center(spec) -> np.ndarray:
-    """The middle of the spec's ``[data]`` initial coordinates (zeros without a range)."""
+    """The middle of the initial coordinates of the spec's data (its ``[data]`` table, or a PCC
+    arm's physics defaults without one; zeros without a range)."""
     r = _data_range(spec)
     return np.zeros(spec.n) if r is None else 0.5 * (r[0] + r[1])
 
 
 def default_radius(spec) -> float:
-    """15 % of the smaller range of the first two initial coordinates (0.1 without one)."""
+    """15 % of the smaller range of the first two initial coordinates of the spec's data (its
+    ``[data]`` table, or a PCC arm's physics defaults without one; 0.1 without a range)."""
     r = _data_range(spec)
     if r is None or spec.n < 2:
         return 0.1
@@ -89,13 +125,7 @@ def default_input_bounds(spec) -> tuple[np.ndarray, np.ndarray] | None:
 
     if not spec.m:
         return None
-    quiet = logging.getLogger("softpinn.symbolic")  # the physics defaults' note is simulate's
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)
-    try:
-        plan = plan_dataset(spec)
-    finally:
-        quiet.setLevel(level)
+    plan = _quiet_plan(spec)
     sim = plan.sim
     _, signals = draw_trajectories(plan.data, spec.n, spec.m, range(plan.trajectories),
                                    kind=plan.signal, duration=sim.duration + plan.settle,
@@ -163,6 +193,11 @@ def equilibrium(true_model, q_desired, *, weight_u: float = 1e-12
         raise UserError(f"equilibrium: expected {n} coordinates, got {qd.size}")
     inverse = true_model.functions["inverse"]
     A = true_model.functions["A"]
+    tau0 = np.asarray(inverse(qd, np.zeros(n), np.zeros(n))).ravel()
+    A0 = np.asarray(A(qd)).reshape(n, m)
+    u0 = np.linalg.lstsq(A0, tau0, rcond=None)[0] if m else np.zeros(0)
+    if np.linalg.norm(A0 @ u0 - tau0) <= 1e-12 * (1.0 + np.linalg.norm(tau0)):
+        return qd, u0  # q_desired is a rest state already (a fully actuated arm)
     q, u = ca.SX.sym("q", n), ca.SX.sym("u", m)
     z = ca.SX.zeros(n)
     tau = inverse(q, z, z)
@@ -173,11 +208,6 @@ def equilibrium(true_model, q_desired, *, weight_u: float = 1e-12
                        {"print_time": False, "error_on_fail": False,
                         "ipopt": {"print_level": 0, "sb": "yes", "tol": 1e-12,
                                   "max_iter": 200}})
-    tau0 = np.asarray(inverse(qd, np.zeros(n), np.zeros(n))).ravel()
-    A0 = np.asarray(A(qd)).reshape(n, m)
-    u0 = np.linalg.lstsq(A0, tau0, rcond=None)[0] if m else np.zeros(0)
-    if np.linalg.norm(A0 @ u0 - tau0) <= 1e-12 * (1.0 + np.linalg.norm(tau0)):
-        return qd, u0  # q_desired is a rest state already (a fully actuated arm)
     sol = solver(x0=np.concatenate([qd, u0]), lbg=0, ubg=0)
     w = np.asarray(sol["x"]).ravel()
     viol = np.max(np.abs(np.asarray(sol["g"]))) if n else 0.0
@@ -185,6 +215,74 @@ def equilibrium(true_model, q_desired, *, weight_u: float = 1e-12
         raise UserError(f"equilibrium: no rest state found near q = {qd.tolist()} "
                         f"({solver.stats()['return_status']})")
     return w[:n], w[n:]
+
+
+def _reference_points(q_center, radius: float) -> list[np.ndarray]:
+    """The desired q the references ask around ``q_center``: the step targets and eight points
+    of the circle."""
+    circle = [_circle_q(q_center, radius, 8.0, t) for t in range(8)]
+    return step_targets(q_center, radius) + circle
+
+
+def reachable_radius(true_model, q_center, radius: float, u_min, u_max, *,
+                     margin: float = INPUT_MARGIN) -> float:
+    """``radius``, shrunk (halved until it is) so that the input holding each rest state the
+    references ask (:func:`equilibrium` at the step targets and along the circle) lies inside
+    [u_min, u_max] less ``margin`` of the box's width on each side: a reference the arm can
+    follow with the inputs it is allowed. Issue 46: a 3-segment tendon arm's default circle
+    needed 16 N where the bounds allow ±3.9 N, and every controller saturated (0.46 m RMS,
+    failed solves). Unbounded inputs keep ``radius``; 0 when even the centre's input is
+    outside."""
+    lb, ub = (np.asarray(v, float).ravel() for v in (u_min, u_max))
+    finite = np.isfinite(lb) & np.isfinite(ub)
+    with np.errstate(invalid="ignore"):  # inf - inf where a bound is missing
+        width = np.where(finite, ub - lb, 0.0)
+    lo, hi = lb + margin * width, ub - margin * width
+
+    def inside(r):
+        for q in ([np.asarray(q_center, float)] if r == 0 else _reference_points(q_center, r)):
+            try:
+                u = equilibrium(true_model, q)[1]
+            except UserError:
+                return False
+            if np.any(u < lo) or np.any(u > hi):
+                return False
+        return True
+
+    r = float(radius)
+    for _ in range(40):  # 2^-40: nothing is left of any radius
+        if inside(r):
+            break
+        r *= 0.5
+    else:
+        return 0.0
+    if r == radius:
+        return r
+    good, bad = r, 2.0 * r
+    for _ in range(4):  # then within 1/16 of the largest radius that fits
+        mid = 0.5 * (good + bad)
+        good, bad = (mid, bad) if inside(mid) else (good, mid)
+    return good
+
+
+def fitted_radius(true_model, q_center, radius: float, u_min, u_max, *, given: bool,
+                  say=None) -> float:
+    """The radius ``softpinn control`` uses on a PCC arm: the default one shrunk by
+    :func:`reachable_radius`; a ``given`` one kept, with a note (``say``) where it does not
+    fit. Other models keep theirs."""
+    if true_model.spec.kind not in ("spatial-pcc", "planar-pcc"):
+        return radius
+    say = say or (lambda line: None)
+    fits = reachable_radius(true_model, q_center, radius, u_min, u_max)
+    if fits < radius and not given:
+        say(f"note: the default radius {radius:.4g} asks rest states whose inputs leave the "
+            f"bounds; using {fits:.4g} (every holding input inside the bounds, "
+            f"{INPUT_MARGIN:.0%} of their width clear)")
+        return fits
+    if fits < radius:
+        say(f"note: --radius {radius:g} asks rest states the arm cannot hold within the "
+            f"input bounds; {fits:.4g} would fit")
+    return radius
 
 
 def step_targets(q_center, radius: float) -> list[np.ndarray]:

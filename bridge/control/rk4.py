@@ -43,12 +43,15 @@ def rk4_map(field: ca.Function, dt: float, substeps: int) -> ca.Function:
     return ca.Function("F", [x, u], [y], ["x", "u"], ["x_next"])
 
 
-def _field_functions(field: ca.Function):
-    """``(f, ∂f/∂(x, u))`` and ``f`` of the field as Functions of (x, u)."""
+def _field_functions(field: ca.Function, jacobian: ca.Function | None = None):
+    """``(f, ∂f/∂(x, u))`` and ``f`` of the field as Functions of (x, u); ``jacobian``: the
+    first, given by the model (:attr:`.models.PredictionModel.jacobian`)."""
     nx, m = field.size1_in(0), field.size1_in(1)
     sym = _sym(field)
     xs, us = sym.sym("x", nx), sym.sym("u", m)
     f = field(xs, us)
+    if jacobian is not None:
+        return jacobian, ca.Function("mpc_field", [xs, us], [f])
     z = ca.vertcat(xs, us)
     # MX (a network's dense layers): forward mode in all directions at once keeps each layer one
     # matrix product; ``jacobian`` would multiply dense diagonal matrices (twice the time)
@@ -72,7 +75,8 @@ def _frozen_sensitivities(fj: ca.Function, point, u, h: float, substeps: int):
     return A, ca.mtimes(Ssum, ca.mtimes(h * Q, Jxu[:, nx:]))
 
 
-def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool = False):
+def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool = False,
+                     functions=None):
     """``stage(x, u) -> (x⁺, ∂x⁺/∂x, ∂x⁺/∂u)`` and ``roll(x, u) -> x⁺`` for the RK4 map.
 
     ``frozen=False``: the sensitivities follow RK4's variational equations from the field's
@@ -90,9 +94,14 @@ def _stage_functions(field: ca.Function, dt: float, substeps: int, frozen: bool 
     O(h²) (the midpoint; the start's Jacobian was O(h) and lost task 5's steps): an
     inexact-Jacobian SQP, whose iterations :class:`MPC` redoes with the exact sensitivities
     where they give no step. It costs one Jacobian
-    instead of 4 s per step: most of a solve for a network's field."""
+    instead of 4 s per step: most of a solve for a network's field.
+
+    ``functions``: the field's ``(fj, fs)`` of :func:`_field_functions` to call, so that the
+    Functions of one controller share them: the generated C holds each once (issue 46: built
+    per call, the frozen controller's C held the Jacobian twice and the lifted one's three
+    times, 582 k lines each for a 3-segment arm)."""
     nx, m = field.size1_in(0), field.size1_in(1)
-    fj, fs = _field_functions(field)
+    fj, fs = _field_functions(field) if functions is None else functions
     x, u = ca.MX.sym("x", nx), ca.MX.sym("u", m)
     h = dt / substeps
 
