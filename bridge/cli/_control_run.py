@@ -12,7 +12,13 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from softpinn.bridge.cli._jax import enable_x64
-from softpinn.bridge.control import ControlConfig, MPCConfig, compare, default_input_bounds
+from softpinn.bridge.control import (
+    ControlConfig,
+    MPCConfig,
+    arm_defaults,
+    compare,
+    default_input_bounds,
+)
 from softpinn.bridge.export import check_timeout
 from softpinn.errors import UserError
 from softpinn.symbolic import load_spec
@@ -56,15 +62,18 @@ def run(args) -> int:
         u_min = tuple(float(v) for v in data_bounds[0]) if u_min is None else u_min
         u_max = tuple(float(v) for v in data_bounds[1]) if u_max is None else u_max
     _check_order(u_min, u_max, given=(args.u_min is not None, args.u_max is not None))
+    horizon, sensitivities, note = arm_defaults(spec.n, args.horizon, args.sensitivities)
+    if note and not args.quiet:
+        print(note, file=sys.stderr)
     mpc = MPCConfig(
-        horizon=args.horizon, dt=1.0 / args.rate, substeps=args.substeps,
+        horizon=horizon, dt=1.0 / args.rate, substeps=args.substeps,
         stiffness=args.stiffness,
         weight_y=args.weight_y, weight_u=args.weight_u, weight_du=args.weight_du,
         u_min=u_min, u_max=u_max, solver=args.solver, qpsol=args.qpsol,
         max_iter=args.max_iter, codegen=not args.no_codegen,
         compile_timeout=check_timeout(args.compile_timeout), offset_free=args.offset_free,
         offset_free_rate=args.offset_free_rate,
-        sensitivities=args.sensitivities,
+        sensitivities=sensitivities,
     )
     config = ControlConfig(
         mpc=mpc, references=tuple(args.reference), center=args.center, radius=args.radius,

@@ -26,7 +26,14 @@ def add_parser(subparsers):
 
 def add_arguments(p) -> None:
     # deferred: casadi at start-up (the defaults are MPCConfig's)
-    from softpinn.bridge.control import QP_SOLVERS, REFERENCES, SENSITIVITIES, SOLVERS, MPCConfig
+    from softpinn.bridge.control import (
+        LARGE_ARM_N,
+        QP_SOLVERS,
+        REFERENCES,
+        SENSITIVITIES,
+        SOLVERS,
+        MPCConfig,
+    )
 
     d = MPCConfig()
     p.add_argument("model", metavar="MODEL",
@@ -66,8 +73,9 @@ def add_arguments(p) -> None:
     m = p.add_argument_group("controller")
     m.add_argument("--rate", type=float, default=1.0 / d.dt, metavar="HZ",
                    help="control rate (the MPC step is 1 / rate)")
-    m.add_argument("--horizon", type=int, default=d.horizon, metavar="N",
-                   help="prediction horizon in control steps")
+    m.add_argument("--horizon", type=int, default=None, metavar="N",
+                   help=f"prediction horizon in control steps (default: {d.horizon}; 10 for "
+                        f"arms of {LARGE_ARM_N} coordinates or more)")
     m.add_argument("--substeps", type=int, default=d.substeps, metavar="K",
                    help="least RK4 sub-steps per control step in the prediction (more for a "
                         "model that is stiff at the centre)")
@@ -105,8 +113,10 @@ def add_arguments(p) -> None:
                         "too (an alpha-beta filter with this second gain in [0, 1]), so that "
                         "a learned model's error drifting along a moving reference is not "
                         "lagged (about GAIN^2 / (2 - GAIN) damps it critically; 0: off)")
-    m.add_argument("--sensitivities", choices=SENSITIVITIES, default=d.sensitivities,
-                   help="the SQP's sensitivities: exact (RK4's variational equations, four "
+    m.add_argument("--sensitivities", choices=SENSITIVITIES, default=None,
+                   help=f"(default: {d.sensitivities}; lifted for arms of {LARGE_ARM_N} "
+                        "coordinates or more) the SQP's sensitivities: exact (RK4's "
+                        "variational equations, four "
                         "Jacobians of the model per sub-step); frozen (one Jacobian per "
                         "control step; the prediction stays exact, a network's solve is "
                         "several times faster); lifted (frozen, and each step linearised "

@@ -14,7 +14,7 @@ See docs/control.md.
 """
 
 from softpinn.bridge.control.compare import compare
-from softpinn.bridge.control.config import REFERENCES, ControlConfig
+from softpinn.bridge.control.config import LARGE_ARM_N, REFERENCES, ControlConfig, arm_defaults
 from softpinn.bridge.control.loop import closed_loop, metrics, plant
 from softpinn.bridge.control.models import (
     PredictionModel,
@@ -39,6 +39,7 @@ from softpinn.bridge.control.references import (
 )
 
 __all__ = [
+    "LARGE_ARM_N",
     "ControlConfig",
     "MPC",
     "MPCConfig",
@@ -47,6 +48,7 @@ __all__ = [
     "SENSITIVITIES",
     "REFERENCES",
     "SOLVERS",
+    "arm_defaults",
     "circle_reference",
     "circle_start",
     "closed_loop",
