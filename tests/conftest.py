@@ -85,3 +85,24 @@ def session_cache(tmp_path_factory, monkeypatch):
     """Compiled libraries go to a cache of this test session, not the user's (the export and
     control tests: ``pytestmark = pytest.mark.usefixtures("session_cache")``)."""
     monkeypatch.setenv("SOFTPINN_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+
+
+@pytest.fixture(scope="session")
+def msd_spec(tmp_path_factory):
+    """Path of the forced two-mass chain's spec (datagen.MSD_SPEC): the model of the runs trained
+    on ``make_dataset``'s "msd" data (export and control tests)."""
+    from datagen import MSD_SPEC
+
+    path = tmp_path_factory.mktemp("spec") / "forced.toml"
+    path.write_text(MSD_SPEC)
+    return str(path)
+
+
+@pytest.fixture(scope="session")
+def msd_full_spec(tmp_path_factory):
+    """Path of the same chain with a force on each mass (datagen.MSD_SPEC_FULL)."""
+    from datagen import MSD_SPEC_FULL
+
+    path = tmp_path_factory.mktemp("spec") / "full.toml"
+    path.write_text(MSD_SPEC_FULL)
+    return str(path)

@@ -9,7 +9,7 @@ import json
 
 import numpy as np
 import pytest
-from datagen import MSD_SPEC, MSD_SPEC_FULL, make_dataset, tiny_model_config
+from datagen import make_dataset, tiny_model_config
 
 from softpinn.actuator import Actuator
 from softpinn.bridge.control import (
@@ -32,20 +32,6 @@ from softpinn.symbolic import TrueModel
 pytestmark = pytest.mark.usefixtures("session_cache")
 
 
-@pytest.fixture(scope="module")
-def spec(tmp_path_factory):
-    path = tmp_path_factory.mktemp("spec") / "forced.toml"
-    path.write_text(MSD_SPEC)
-    return str(path)
-
-
-@pytest.fixture(scope="module")
-def full(tmp_path_factory):
-    path = tmp_path_factory.mktemp("spec") / "full.toml"
-    path.write_text(MSD_SPEC_FULL)
-    return str(path)
-
-
 def _loop(spec, act, steps=40, dt=0.05, **kw):
     tm = TrueModel(spec)
     out = tip_output(tm.spec)
@@ -59,10 +45,10 @@ def _loop(spec, act, steps=40, dt=0.05, **kw):
 
 
 @pytest.mark.parametrize("text", ["0.1:0", "0.1:0.1", "0.1,0:0"])
-def test_the_true_model_behind_an_actuator_reaches_a_step(full, text):
+def test_the_true_model_behind_an_actuator_reaches_a_step(msd_full_spec, text):
     act = Actuator.parse(text, 2)
-    res, target = _loop(full, act)
-    plain, _ = _loop(full, None)
+    res, target = _loop(msd_full_spec, act)
+    plain, _ = _loop(msd_full_spec, None)
     assert not res["diverged"] and np.all(res["success"])
     err = np.linalg.norm(res["y"] - target, axis=1)
     assert np.all(np.isfinite(err)) and err[-1] < 1e-3 * err[0], err[::5]
@@ -84,21 +70,21 @@ def test_the_true_model_behind_an_actuator_reaches_a_step(full, text):
 
 @pytest.mark.parametrize("kw", [dict(solver="ipopt"), dict(offset_free=0.5),
                                 dict(sensitivities="lifted")])
-def test_solvers_and_estimates_behind_a_dead_time(full, kw):
+def test_solvers_and_estimates_behind_a_dead_time(msd_full_spec, kw):
     """IPOPT, the disturbance estimate and the lifted SQP see the same augmented model."""
-    res, target = _loop(full, Actuator.parse("0.1:0.1", 2), **kw)
+    res, target = _loop(msd_full_spec, Actuator.parse("0.1:0.1", 2), **kw)
     err = np.linalg.norm(res["y"] - target, axis=1)
     assert not res["diverged"] and err[-1] < 1e-3 * err[0], err[::5]
 
 
-def test_dead_times_the_controller_cannot_take_are_refused(spec):
-    tm = TrueModel(spec)
+def test_dead_times_the_controller_cannot_take_are_refused(msd_spec):
+    tm = TrueModel(msd_spec)
     model = actuate(from_true(tm, tip_output(tm.spec)), Actuator.parse("0.1:0.07", 1))
     with pytest.raises(UserError, match="whole number of control steps"):
         MPC(model, MPCConfig(horizon=5, dt=0.05, codegen=False))
 
 
-def test_a_run_with_an_actuator_controls_through_it(spec, tmp_path):
+def test_a_run_with_an_actuator_controls_through_it(msd_spec, tmp_path):
     data = make_dataset(tmp_path / "msd.npz", trajectories=3, duration=2.0)
     runs = {}
     for name, act in (("lag", "0.1:0"), ("plain", "none")):
@@ -108,8 +94,8 @@ def test_a_run_with_an_actuator_controls_through_it(spec, tmp_path):
         runs[name] = tmp_path / name
     mpc = MPCConfig(horizon=8, dt=0.05, u_min=(-5.0,), u_max=(5.0,), codegen=False)
     control = ControlConfig(mpc=mpc, duration=0.5, references=("step",))
-    with_act = compare(spec, [runs["lag"]], tmp_path / "c1", control, names=["net"])
-    without = compare(spec, [runs["plain"]], None, control, names=["net"])
+    with_act = compare(msd_spec, [runs["lag"]], tmp_path / "c1", control, names=["net"])
+    without = compare(msd_spec, [runs["plain"]], None, control, names=["net"])
     assert with_act["plant"]["actuator"]["text"] == "0.1:0"
     assert "actuator" not in without["plant"]
     assert with_act["controllers"]["net"]["actuator"]["time_constant"] == [0.1]

@@ -10,7 +10,8 @@ import json
 
 import numpy as np
 import pytest
-from datagen import MSD_SPEC, make_dataset, tiny_model_config
+from clihelp import one_line_error, run_cli
+from datagen import make_dataset, tiny_model_config
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import MPC, MPCConfig, from_run, from_true, tip_output
@@ -49,43 +50,20 @@ def run(tmp_path_factory):
     return out
 
 
-@pytest.fixture(scope="module")
-def spec_file(tmp_path_factory):
-    path = tmp_path_factory.mktemp("specs") / "forced.toml"
-    path.write_text(MSD_SPEC)
-    return str(path)
-
-
-def _cli(capsys, *argv):
-    try:
-        status = cli.main([str(a) for a in argv])
-    except SystemExit as exc:  # argparse's own errors (one line too, see bridge/cli/_parser)
-        status = exc.code
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
-
-
-def _one_line_error(capsys, *argv) -> str:
-    status, _, err = _cli(capsys, *argv)
-    assert status == 2 and err.startswith("softpinn: error: ") and err.count("\n") == 1, err
-    assert "Traceback" not in err
-    return err
-
-
 # ------------------------------------------------------------------ the flag's checks
 
 
 @pytest.mark.parametrize("value", ["0", "-5", "nan", "inf", "soon"])
 def test_export_flag_is_checked_in_one_line(capsys, tmp_path, value):
-    err = _one_line_error(capsys, "export", tmp_path / "no-run", "--out", tmp_path / "e",
+    err = one_line_error(capsys, "export", tmp_path / "no-run", "--out", tmp_path / "e",
                           "--compile-timeout", value)
     assert "--compile-timeout" in err
     assert not (tmp_path / "e").exists()
 
 
 @pytest.mark.parametrize("value", ["0", "-1", "nan"])
-def test_control_flag_is_checked_in_one_line(capsys, tmp_path, spec_file, value):
-    err = _one_line_error(capsys, "control", spec_file, "--out", tmp_path / "c",
+def test_control_flag_is_checked_in_one_line(capsys, tmp_path, msd_spec, value):
+    err = one_line_error(capsys, "control", msd_spec, "--out", tmp_path / "c",
                           "--compile-timeout", value)
     assert "--compile-timeout" in err
     assert not (tmp_path / "c").exists()
@@ -130,7 +108,7 @@ def test_export_limit_reaches_the_compiler(run, tmp_path, monkeypatch):
 @needs_cc
 def test_export_past_the_limit_names_the_flag_and_writes_nothing(run, tmp_path, capsys):
     out = tmp_path / "e"
-    err = _one_line_error(capsys, "export", run, "--out", out, "--compile-timeout", "0.001",
+    err = one_line_error(capsys, "export", run, "--out", out, "--compile-timeout", "0.001",
                           "--json")  # --json: no progress lines on stderr
     assert "ran past its timeout of 0.001 s on the export's" in err
     assert "--compile-timeout" in err and "--no-compile" in err
@@ -139,15 +117,15 @@ def test_export_past_the_limit_names_the_flag_and_writes_nothing(run, tmp_path, 
     # an earlier export in --out (with --force) is left as it was, not half replaced
     export_run(run, out, compile=False)
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    _one_line_error(capsys, "export", run, "--out", out, "--force", "--compile-timeout",
+    one_line_error(capsys, "export", run, "--out", out, "--force", "--compile-timeout",
                     "0.001", "--json")
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
     load_exported(out)  # its checksums still hold
 
 
 @needs_cc
-def test_control_solver_past_the_limit_names_the_flags(spec_file, tmp_path):
-    spec = load_spec(spec_file)
+def test_control_solver_past_the_limit_names_the_flags(msd_spec, tmp_path):
+    spec = load_spec(msd_spec)
     tm = TrueModel(spec)
     model = from_true(tm, tip_output(spec))
     with pytest.raises(CompilerTimeout) as info:
@@ -172,7 +150,7 @@ def test_a_true_models_timeout_keeps_the_quadrature_advice(tmp_path):
 
 def test_export_without_a_library_loads_and_runs(run, tmp_path, capsys):
     out = tmp_path / "e"
-    status, text, _ = _cli(capsys, "export", run, "--out", out, "--no-compile")
+    status, text, _ = run_cli(capsys, "export", run, "--out", out, "--no-compile")
     assert status == 0 and "no library (--no-compile)" in text, text
     assert (out / "model.c").is_file() and (out / "model.h").is_file()
     assert not (out / "model.so").exists()
@@ -191,22 +169,22 @@ def test_export_without_a_library_loads_and_runs(run, tmp_path, capsys):
                                    atol=1e-12)
 
 
-def test_control_no_codegen_exports_no_library(run, spec_file, tmp_path, monkeypatch):
+def test_control_no_codegen_exports_no_library(run, msd_spec, tmp_path, monkeypatch):
     calls = []
     monkeypatch.setattr(_codegen, "compile_c", lambda *a, **k: calls.append(k) or 0.0)
-    spec = load_spec(spec_file)
+    spec = load_spec(msd_spec)
     pm = from_run(run, tip_output(spec), export_dir=tmp_path / "x", compile=False)
     assert not (tmp_path / "x" / "model.so").exists() and calls == []
     x = np.asarray(pm.field(np.zeros(pm.nx), np.zeros(pm.m))).ravel()
     assert np.all(np.isfinite(x))
 
 
-def test_cli_control_no_codegen_compiles_nothing(run, spec_file, tmp_path, capsys,
+def test_cli_control_no_codegen_compiles_nothing(run, msd_spec, tmp_path, capsys,
                                                  monkeypatch):
     calls = []
     monkeypatch.setattr(_codegen, "compile_c", lambda *a, **k: calls.append(k) or 0.0)
     out = tmp_path / "c"
-    status, text, err = _cli(capsys, "control", spec_file, "--runs", run, "--out", out,
+    status, text, err = run_cli(capsys, "control", msd_spec, "--runs", run, "--out", out,
                              "--no-true", "--no-linear", "--no-codegen", "--reference", "step",
                              "--duration", "0.2", "--horizon", "5", "--rate", "20", "--quiet")
     assert status == 0, err

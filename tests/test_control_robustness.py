@@ -16,7 +16,6 @@ import time
 
 import numpy as np
 import pytest
-from datagen import MSD_SPEC_FULL
 
 from softpinn.bridge import cli
 from softpinn.bridge.control import ControlConfig, MPCConfig, compare
@@ -32,13 +31,6 @@ compare_module = importlib.import_module("softpinn.bridge.control.compare")
 
 #: compiled libraries go to a cache of this test session (conftest.py)
 pytestmark = pytest.mark.usefixtures("session_cache")
-
-
-@pytest.fixture
-def spec(tmp_path):
-    path = tmp_path / "msd.toml"
-    path.write_text(MSD_SPEC_FULL)
-    return str(path)
 
 
 def _config(**kw):
@@ -112,7 +104,7 @@ def test_interrupts_defer_sigint_to_the_check(ctrl_c_raises):
         raise UserError("compiler: gcc was killed")
 
 
-def test_a_failed_controller_keeps_the_others(spec, tmp_path, monkeypatch, capsys):
+def test_a_failed_controller_keeps_the_others(msd_full_spec, tmp_path, monkeypatch, capsys):
     """The true controller's build raises: the linearised one's results are written, the
     failure is named in results.json, report.md and one CLI line with exit status 2."""
     real = compare_module.MPC
@@ -125,7 +117,7 @@ def test_a_failed_controller_keeps_the_others(spec, tmp_path, monkeypatch, capsy
     monkeypatch.setattr(compare_module, "MPC", build)
     out = tmp_path / "c"
     lines = []
-    result = compare(spec, [], out, _config(), log=lines.append)
+    result = compare(msd_full_spec, [], out, _config(), log=lines.append)
     assert list(result["results"]["step"]) == ["linearised"]
     assert result["failed"]["true"]["stage"] == "build"
     assert result["failed"]["true"]["error"] == "boom: the solver could not be built second line"
@@ -148,9 +140,9 @@ def test_a_failed_controller_keeps_the_others(spec, tmp_path, monkeypatch, capsy
         return mpc
 
     monkeypatch.setattr(compare_module, "MPC", solve_raises)
-    status = cli.main(["control", spec, "--out", str(tmp_path / "d"), "--reference", "step",
-                       "--duration", "0.2", "--horizon", "5", "--rate", "20", "--no-codegen",
-                       "--quiet"])
+    status = cli.main(["control", msd_full_spec, "--out", str(tmp_path / "d"), "--reference",
+                       "step", "--duration", "0.2", "--horizon", "5", "--rate", "20",
+                       "--no-codegen", "--quiet"])
     captured = capsys.readouterr()
     assert status == 2, captured.err
     assert captured.err.count("\n") == 1 and captured.err.startswith(
@@ -163,10 +155,10 @@ def test_a_failed_controller_keeps_the_others(spec, tmp_path, monkeypatch, capsy
     # nothing finished: the failure is the run's, raised as it was, and a fresh --out is freed
     monkeypatch.setattr(compare_module, "MPC", build)
     with pytest.raises(RuntimeError, match="boom"):
-        compare(spec, [], tmp_path / "e", _config(include_linear=False))
+        compare(msd_full_spec, [], tmp_path / "e", _config(include_linear=False))
 
 
-def test_a_long_build_says_what_it_does(spec, tmp_path, monkeypatch):
+def test_a_long_build_says_what_it_does(msd_full_spec, tmp_path, monkeypatch):
     """A build longer than ANNOUNCE_AFTER says so while it runs, and how long it took."""
     real = compare_module.MPC
 
@@ -178,12 +170,12 @@ def test_a_long_build_says_what_it_does(spec, tmp_path, monkeypatch):
     monkeypatch.setattr(importlib.import_module("softpinn.bridge.control.stepping"),
                         "ANNOUNCE_AFTER", 0.1)
     lines = []
-    compare(spec, [], None, _config(include_linear=False), log=lines.append)
+    compare(msd_full_spec, [], None, _config(include_linear=False), log=lines.append)
     assert lines[0].startswith("control: building true's MPC (n = 2, horizon 5, sqp")
     assert lines[1].startswith("control: true's MPC built in ")
 
 
-def test_failed_solves_are_counted_by_cause(spec, tmp_path, monkeypatch):
+def test_failed_solves_are_counted_by_cause(msd_full_spec, tmp_path, monkeypatch):
     """Each failed solve's cause from its status; counts per controller in results.json and
     the report, with what a failed solve applies."""
     assert cause("QP failed (0)", "SOLVER_RET_INFEASIBLE") == "infeasible"
@@ -223,7 +215,7 @@ def test_failed_solves_are_counted_by_cause(spec, tmp_path, monkeypatch):
         return mpc
 
     monkeypatch.setattr(compare_module, "MPC", flaky)
-    result = compare(spec, [], tmp_path / "c", _config(include_linear=False))
+    result = compare(msd_full_spec, [], tmp_path / "c", _config(include_linear=False))
     met = result["results"]["step"]["true"]
     assert met["failures"] == met["steps"] // 2 > 0
     assert met["failure_causes"] == {"infeasible": met["failures"]}

@@ -13,9 +13,9 @@ import json
 import shutil
 
 import pytest
-from datagen import MSD_SPEC, make_dataset, tiny_model_config
+from clihelp import one_line_error, run_cli
+from datagen import make_dataset, tiny_model_config
 
-from softpinn.bridge import cli
 from softpinn.bridge.control import ControlConfig, MPCConfig, compare, from_export, tip_output
 from softpinn.bridge.export import export_run, load_exported
 from softpinn.errors import UserError
@@ -23,13 +23,6 @@ from softpinn.symbolic import load_spec
 
 #: compiled libraries go to a cache of this test session (conftest.py)
 pytestmark = pytest.mark.usefixtures("session_cache")
-
-
-@pytest.fixture(scope="module")
-def spec(tmp_path_factory):
-    path = tmp_path_factory.mktemp("spec") / "forced.toml"
-    path.write_text(MSD_SPEC)
-    return str(path)
 
 
 @pytest.fixture(scope="module")
@@ -70,18 +63,6 @@ def _flip(path, offset=None):
     path.write_bytes(bytes(raw))
 
 
-def _cli(capsys, *argv):
-    status = cli.main([*map(str, argv)])
-    captured = capsys.readouterr()
-    return status, captured.out, captured.err
-
-
-def _refused(capsys, *argv) -> str:
-    status, _, err = _cli(capsys, *argv)
-    assert status == 2 and err.startswith("softpinn: error: ") and err.count("\n") == 1, err
-    assert "Traceback" not in err
-    return err
-
 
 #: the cheapest comparison: two control steps with the learned model alone, no C
 QUICK = ("--reference", "step", "--duration", "0.1", "--rate", "20", "--horizon", "3",
@@ -89,8 +70,7 @@ QUICK = ("--reference", "step", "--duration", "0.1", "--rate", "20", "--horizon"
 
 
 # --- 2. verified exports ------------------------------------------------------------------
-
-def test_an_export_lists_the_sha256_of_every_file_it_wrote(exported, spec):
+def test_an_export_lists_the_sha256_of_every_file_it_wrote(exported, msd_spec):
     meta = json.loads((exported / "model.json").read_text())
     sums = meta["sha256"]
     written = {p.name for p in exported.iterdir() if p.is_file() and p.name != "model.json"}
@@ -101,15 +81,15 @@ def test_an_export_lists_the_sha256_of_every_file_it_wrote(exported, spec):
     for name, sha in sums.items():
         assert hashlib.sha256((exported / name).read_bytes()).hexdigest() == sha
     assert set(load_exported(exported)) == set(meta["functions"])
-    model = from_export(exported, tip_output(load_spec(spec)))
+    model = from_export(exported, tip_output(load_spec(msd_spec)))
     assert model.info["verified"] is True
 
 
-def test_a_flipped_byte_is_refused_by_every_loader(exported, spec, tmp_path, capsys):
+def test_a_flipped_byte_is_refused_by_every_loader(exported, msd_spec, tmp_path, capsys):
     meta = json.loads((exported / "model.json").read_text())
     targets = ["field.casadi", "model.c"] + ([meta["c"]["library"]] if meta["c"]["library"]
                                              else [])
-    output = tip_output(load_spec(spec))
+    output = tip_output(load_spec(msd_spec))
     for name in targets:
         bad = _copy(exported, tmp_path, f"bad-{name}")
         _flip(bad / name)
@@ -120,7 +100,7 @@ def test_a_flipped_byte_is_refused_by_every_loader(exported, spec, tmp_path, cap
             assert str(bad / name) in text and "changed since softpinn export" in text
             assert "\n" not in text
         out = tmp_path / f"out-{name}"
-        err = _refused(capsys, "control", spec, "--runs", bad, "--out", out, *QUICK)
+        err = one_line_error(capsys, "control", msd_spec, "--runs", bad, "--out", out, *QUICK)
         assert str(bad / name) in err and not out.exists()
 
 
@@ -134,14 +114,14 @@ def test_a_missing_file_is_refused_in_one_line(exported, tmp_path):
         load_exported(bad)
 
 
-def test_an_export_from_before_the_checksums_still_loads(exported, spec, tmp_path, capsys):
+def test_an_export_from_before_the_checksums_still_loads(exported, msd_spec, tmp_path, capsys):
     old = _copy(exported, tmp_path)
     meta = json.loads((old / "model.json").read_text())
     del meta["sha256"]
     (old / "model.json").write_text(json.dumps(meta))
     assert set(load_exported(old)) == set(meta["functions"])
-    assert from_export(old, tip_output(load_spec(spec))).info["verified"] is False
-    status, _, err = _cli(capsys, "control", spec, "--runs", old, "--out", tmp_path / "ok",
+    assert from_export(old, tip_output(load_spec(msd_spec))).info["verified"] is False
+    status, _, err = run_cli(capsys, "control", msd_spec, "--runs", old, "--out", tmp_path / "ok",
                           *QUICK)
     assert status == 0, err
     assert "not verified" in err
@@ -155,22 +135,22 @@ def test_an_export_from_before_the_checksums_still_loads(exported, spec, tmp_pat
     (("--duration", "0.001"), "--duration: 0.001 s is shorter than one control step"),
     (("--rate", "1e9"), "--rate: 1e+09 Hz over"),
 ])
-def test_control_refuses_before_it_claims_out(spec, tmp_path, capsys, argv, said):
+def test_control_refuses_before_it_claims_out(msd_spec, tmp_path, capsys, argv, said):
     out = tmp_path / "out"
-    assert said in _refused(capsys, "control", spec, "--out", out, *argv)
+    assert said in one_line_error(capsys, "control", msd_spec, "--out", out, *argv)
     assert not out.exists()
 
 
-def test_control_library_checks_bounds_and_duration_before_the_claim(spec, tmp_path):
+def test_control_library_checks_bounds_and_duration_before_the_claim(msd_spec, tmp_path):
     out = tmp_path / "out"
     for config in (ControlConfig(mpc=MPCConfig(u_min=(1.0,), u_max=(0.0,))),
                    ControlConfig(duration=1e-3)):
         with pytest.raises(UserError):
-            compare(spec, [], out, config)
+            compare(msd_spec, [], out, config)
         assert not out.exists()
 
 
-def test_a_refusal_after_the_claim_removes_a_fresh_claim(spec, tmp_path, capsys, monkeypatch):
+def test_a_refusal_after_the_claim_removes_a_fresh_claim(msd_spec, tmp_path, capsys, monkeypatch):
     """Whatever refuses once ``out`` is claimed (here the controller's build), a new folder is
     removed and an empty one emptied."""
     compare_module = importlib.import_module("softpinn.bridge.control.compare")
@@ -182,14 +162,14 @@ def test_a_refusal_after_the_claim_removes_a_fresh_claim(spec, tmp_path, capsys,
     new, empty = tmp_path / "new", tmp_path / "empty"
     empty.mkdir()
     for out in (new, empty):
-        assert "refused for the test" in _refused(capsys, "control", spec, "--out", out,
+        assert "refused for the test" in one_line_error(capsys, "control", msd_spec, "--out", out,
                                                   "--reference", "step", "--no-linear")
     assert not new.exists() and empty.is_dir() and not any(empty.iterdir())
 
 
-def test_analyze_refuses_before_it_claims_out(run, spec, tmp_path, capsys, monkeypatch):
+def test_analyze_refuses_before_it_claims_out(run, msd_spec, tmp_path, capsys, monkeypatch):
     out = tmp_path / "an"
-    err = _refused(capsys, "analyze", run, spec, "--q", "nan", "0", "--out", out,
+    err = one_line_error(capsys, "analyze", run, msd_spec, "--q", "nan", "0", "--out", out,
                    "--model-mismatch-ok")
     assert "--q: expected finite numbers" in err and not out.exists()
     # a refusal after the claim leaves nothing either
@@ -199,8 +179,8 @@ def test_analyze_refuses_before_it_claims_out(run, spec, tmp_path, capsys, monke
         raise UserError("analysis: refused for the test")
 
     monkeypatch.setattr(_analyze_run, "analyze", refuse)
-    err = _refused(capsys, "analyze", run, spec, "--q", "0", "0", "--samples", "0", "--out", out,
-                   "--model-mismatch-ok")
+    err = one_line_error(capsys, "analyze", run, msd_spec, "--q", "0", "0", "--samples", "0",
+                         "--out", out, "--model-mismatch-ok")
     assert "refused for the test" in err and not out.exists()
 
 
@@ -219,7 +199,7 @@ def test_analyze_refuses_before_it_claims_out(run, spec, tmp_path, capsys, monke
 ])
 def test_control_refuses_values_that_describe_no_arm(tmp_path, capsys, argv, said):
     out = tmp_path / "out"
-    assert said in _refused(capsys, "control", *argv, "--out", out)
+    assert said in one_line_error(capsys, "control", *argv, "--out", out)
     assert not out.exists()
 
 
@@ -232,7 +212,7 @@ def test_control_refuses_values_that_describe_no_arm(tmp_path, capsys, argv, sai
 ])
 def test_train_refuses_a_coordinator_that_is_no_address(data, tmp_path, capsys, address, said):
     out = tmp_path / "run"
-    err = _refused(capsys, "train", data, "--model", "lagrangian", "--out", out,
+    err = one_line_error(capsys, "train", data, "--model", "lagrangian", "--out", out,
                    "--coordinator", address, "--num-processes", "1", "--process-id", "0")
     assert "--coordinator" in err and said in err and not out.exists()
 
@@ -242,7 +222,7 @@ def test_import_out_that_is_a_folder_is_called_a_folder(tmp_path, capsys):
         folder = tmp_path / name
         folder.mkdir()
         for force in ((), ("--force",)):
-            err = _refused(capsys, "import", tmp_path / "x.csv", "--model", "task4", "--out",
+            err = one_line_error(capsys, "import", tmp_path / "x.csv", "--model", "task4", "--out",
                            folder, *force)
             assert "is a folder" in err and "--force" not in err
         assert folder.is_dir() and not any(folder.iterdir())
