@@ -37,6 +37,7 @@ from softpinn.learn._nets import (
     first_layers,
     first_layers_transpose,
     make_mlp,
+    softplus_inverse,
 )
 from softpinn.learn._prior import LinearPrior, quiet_start, zero_last
 
@@ -366,8 +367,7 @@ def _physics_parts(config: ModelConfig, key, *, mass_eps):
     mass = CholeskyField(n, *config.mass, act, mass_eps, key=kM, dtype=dt)
     if config.mass_init is not None:
         # diag(L) = softplus(b) + eps = sqrt(mass_init) at the bias: b = softplus⁻¹(...)
-        y = math.sqrt(config.mass_init) - mass_eps
-        b0 = y + math.log(-math.expm1(-y))
+        b0 = softplus_inverse(math.sqrt(config.mass_init) - mass_eps)
         last = mass.mlp.biases[-1]
         mass = eqx.tree_at(lambda f: f.mlp.biases[-1], mass, last.at[:n].set(b0))
         if config.input_form == "known":

@@ -22,6 +22,7 @@ The models only rely on this small protocol, so tests can inject analytic fields
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Callable
 
 import equinox as eqx
@@ -36,6 +37,7 @@ __all__ = [
     "ACTIVATIONS",
     "activation_fn",
     "softplus",
+    "softplus_inverse",
     "make_mlp",
     "MLP",
     "first_layers",
@@ -83,6 +85,12 @@ def softplus(x):
 def _softplus_jvp(primals, tangents):
     (x,), (t,) = primals, tangents
     return softplus(x), jax.nn.sigmoid(x) * t
+
+
+def softplus_inverse(y: float) -> float:
+    """The x with softplus(x) = y > 0, as a Python float (a bias that puts a softplus output at
+    ``y``): x = log(eʸ - 1) = y + log(1 - e⁻ʸ), the second form for large y."""
+    return y + math.log(-math.expm1(-y))
 
 
 def _value_and_slope(name, z):

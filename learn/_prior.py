@@ -23,7 +23,6 @@ a run's ``config.json`` rebuilds its model alone and the exporter writes the sam
 from __future__ import annotations
 
 import json
-import math
 from typing import Any
 
 import equinox as eqx
@@ -38,6 +37,7 @@ from softpinn.learn._nets import (
     ConstantMatrix,
     MatrixField,
     ScalarField,
+    softplus_inverse,
 )
 
 __all__ = ["LinearPrior", "PRIOR_SETTINGS", "parse_prior", "prior_text", "quiet_start",
@@ -134,7 +134,7 @@ def zero_last(mlp, *, bias=0.0):
 #: Bias of a quiet Cholesky damping network's diagonal: diag(L) = softplus(b) = 0.03, so D
 #: starts at 9e-4 I. Not lower: D = L Lᵀ has no gradient at L = 0, and the damping network
 #: would never leave a factor that starts there.
-_QUIET_DIAG = math.log(math.expm1(0.03))
+_QUIET_DIAG = softplus_inverse(0.03)
 
 
 def quiet_start(parts: dict, n: int, eps: float) -> dict:
@@ -145,8 +145,7 @@ def quiet_start(parts: dict, n: int, eps: float) -> dict:
     out = dict(parts)
     mass = parts["mass"]
     if isinstance(mass, CholeskyField):
-        y = 1.0 - eps  # diag(L) = softplus(b) + eps = 1
-        b0 = y + math.log(-math.expm1(-y))
+        b0 = softplus_inverse(1.0 - eps)  # diag(L) = softplus(b) + eps = 1
         bias = jnp.zeros_like(mass.mlp.biases[-1]).at[:n].set(b0)
         out["mass"] = eqx.tree_at(lambda f: f.mlp, mass, zero_last(mass.mlp, bias=bias))
     if isinstance(parts["potential"], ScalarField):
