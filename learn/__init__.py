@@ -22,14 +22,12 @@ from softpinn.learn._actuator import (
 from softpinn.learn._advice import recording_defaults
 from softpinn.learn._baseline_errors import BaselineErrors, range_box
 from softpinn.learn._baseline_errors import rollout_errors as baseline_rollout_errors
+from softpinn.learn._baseline_kinds import BASELINE_KINDS, baseline_from_dict, fit_baseline
 from softpinn.learn._baselines import (
     ARX,
-    BASELINE_KINDS,
     LinearSecondOrder,
     NoMotion,
-    baseline_from_dict,
     fit_arx,
-    fit_baseline,
     fit_linear_second_order,
 )
 from softpinn.learn._checkpoint import (
@@ -63,6 +61,7 @@ from softpinn.learn._losses import (
     rollout_loss,
 )
 from softpinn.learn._models import DynamicsModel, ModelConfig, make_model
+from softpinn.learn._output_error import LinearRolloutFit, fit_linear_rollout
 from softpinn.learn._predict import evaluate, one_step_errors, predict, rollouts
 from softpinn.learn._prior import PRIOR_SETTINGS, resolve_prior
 from softpinn.learn._programs import ProgramCache
@@ -94,6 +93,7 @@ __all__ = [
     "file_sha256",
     "fit_arx",
     "fit_baseline",
+    "fit_linear_rollout",
     "fit_linear_second_order",
     "GROUPS",
     "known_input_text",
@@ -101,6 +101,7 @@ __all__ = [
     "load_dataset",
     "load_ensemble",
     "load_run",
+    "LinearRolloutFit",
     "LinearSecondOrder",
     "LoadedRun",
     "make_model",

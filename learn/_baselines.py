@@ -12,6 +12,9 @@ in closed form, and predicting no motion. numpy and scipy, float64; no jax, no c
   exponential, or by RK4 at the data's step (``integrator="rk4"``, as the networks are).
 * ``"no_motion"`` (:class:`NoMotion`): q̂(t) = q(t0).
 
+* ``"linear2_rollout"`` (:class:`learn._output_error.LinearRolloutFit`): the same model fitted
+  by its rollout error over a horizon, starting from ``linear2``.
+
 Every baseline is a frozen dataclass with ``kind``, ``fit(data, traj_ids)``,
 ``rollout(q0_or_history, qd0, u_seq, dt, input_hold=...)`` -> q (T, n), and
 ``to_dict()`` / ``from_dict()`` (plain JSON); each keeps the box of its training q, which
@@ -31,12 +34,9 @@ import scipy.linalg
 from softpinn.errors import UserError
 from softpinn.learn._trajectories import trajectory_arrays
 
-__all__ = ["ARX", "BASELINE_KINDS", "LinearSecondOrder", "NoMotion", "RIDGE",
-           "baseline_from_dict", "checked_array", "fit_arx", "fit_baseline",
+__all__ = ["ARX", "FORMAT", "LinearSecondOrder", "NoMotion", "RIDGE", "checked_array", "fit_arx",
            "fit_linear_second_order", "trajectory_arrays"]
 
-#: The baseline kinds, as ``to_dict()["kind"]`` names them.
-BASELINE_KINDS = ("arx", "linear2", "no_motion")
 #: Default ridge: λ N added to ZᵀZ of the standardised regressors Z (N rows, unit variance),
 #: a relative shrinkage of λ: conditioning only, far below any fitted effect.
 RIDGE = 1e-9
@@ -276,8 +276,8 @@ class LinearSecondOrder:
 
     @classmethod
     def from_dict(cls, d: Mapping) -> LinearSecondOrder:
-        n, m = (_int(d, k, "linear2") for k in ("n", "m"))
-        g = lambda key, shape: checked_array(d, key, shape, "baseline linear2")  # noqa: E731
+        n, m = (_int(d, k, cls.kind) for k in ("n", "m"))
+        g = lambda key, shape: checked_array(d, key, shape, f"baseline {cls.kind}")  # noqa: E731
         return cls(g("A_q", (n, n)), g("A_v", (n, n)), g("B_u", (n, m)), g("c", (n,)),
                    g("q_low", (n,)), g("q_high", (n,)), str(d.get("integrator", "expm")),
                    dict(d.get("info", {})))
@@ -324,26 +324,6 @@ def _int(d: Mapping, key: str, kind: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or v < (1 if key in ("n", "order") else 0):
         raise UserError(f"baseline {kind}: '{key}' must be a non-negative integer, got {v!r}")
     return v
-
-
-_CLASSES = {"arx": ARX, "linear2": LinearSecondOrder, "no_motion": NoMotion}
-
-
-def baseline_from_dict(d: Mapping):
-    """The baseline a :meth:`to_dict` dict describes."""
-    kind = d.get("kind") if isinstance(d, Mapping) else None
-    if kind not in _CLASSES:
-        raise UserError(f"baseline kind must be one of {list(BASELINE_KINDS)}, got {kind!r}")
-    if d.get("format", FORMAT) != FORMAT:
-        raise UserError(f"baseline {kind}: format {d.get('format')!r} is not {FORMAT}")
-    return _CLASSES[kind].from_dict(d)
-
-
-def fit_baseline(kind: str, data, traj_ids=None, **options):
-    """Fit the baseline ``kind`` (one of :data:`BASELINE_KINDS`) on ``data``."""
-    if kind not in _CLASSES:
-        raise UserError(f"baseline kind must be one of {list(BASELINE_KINDS)}, got {kind!r}")
-    return _CLASSES[kind].fit(data, traj_ids, **options)
 
 
 def _too_few(kind: str, rows: int, need: int, what: str):

@@ -1,10 +1,12 @@
-"""A linear prior inside the networks (issue 43): the least-squares linear second-order model
-as a fixed part of every model kind, with the networks learning the correction on it.
+"""A linear prior inside the networks (issue 43): the linear second-order model as a fixed part
+of every model kind, with the networks learning the correction on it.
 
 On arms that move close to linearly in their recorded range (the Cosserat and experiment
 stand-ins, RESULTS.md), a freshly initialised network spends its budget relearning what the
-closed-form fit M q̈ + D q̇ + K q = B u + c already knows, and ends near or behind it. With the
-prior, a model starts as that fit and its sub-networks add what is not linear:
+fit M q̈ + D q̇ + K q = B u + c already knows, and ends near or behind it. With the prior, a
+model starts as that fit (by least squares on q̈, or by its rollout error where that rolls out
+better on the validation trajectories: :func:`resolve_prior`) and its sub-networks add what is
+not linear:
 
 * Lagrangian (eq. 6) and Hamiltonian (eq. 7) networks: the prior enters as a generalised force
       F₀(q, q̇, u) = B₀ u + c₀ - K₀ q - D₀ q̇
@@ -23,6 +25,7 @@ a run's ``config.json`` rebuilds its model alone and the exporter writes the sam
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 import equinox as eqx
@@ -39,6 +42,7 @@ from softpinn.learn._nets import (
     ScalarField,
     softplus_inverse,
 )
+from softpinn.learn._output_error import fit_linear_rollout, window_error
 
 __all__ = ["LinearPrior", "PRIOR_SETTINGS", "parse_prior", "prior_text", "quiet_start",
            "resolve_prior", "zero_last"]
@@ -76,20 +80,46 @@ def prior_text(fit) -> str:
     return json.dumps(d, sort_keys=True, separators=(",", ":"), allow_nan=False)
 
 
-def resolve_prior(setting: str, data, train_ids) -> tuple[str | None, str | None]:
+def resolve_prior(setting: str, data, train_ids, val_ids=(), *,
+                  input_hold: str = "constant") -> tuple[str | None, str | None]:
     """(``ModelConfig.prior`` text or None, a one-line note) for ``TrainConfig.prior``:
-    "linear" fits M q̈ + D q̇ + K q = B u + c by least squares on the training trajectories of
-    ``data`` (a :class:`learn._data.Dataset` whose inputs are what reaches the arm, i.e.
-    after the run's actuator), "auto" does so on imported recordings only, "none" does not."""
+    "linear" fits M q̈ + D q̇ + K q = B u + c on the training trajectories of ``data`` (a
+    :class:`learn._data.Dataset` whose inputs are what reaches the arm, i.e. after the run's
+    actuator), "auto" does so on imported recordings only, "none" does not.
+
+    Two fits: least squares on the data's q̈ and the rollout fit that starts from it
+    (:mod:`learn._output_error`, on data with one sample step). The prior is the one with the
+    lower rollout error on the validation trajectories ``val_ids`` (on the training ones where
+    there are none): on noisy recordings the rollout fit (smoothed q̈ mislead least squares), on
+    clean ones whichever generalises better."""
     if setting not in PRIOR_SETTINGS:
         raise UserError(f"prior: expected one of {list(PRIOR_SETTINGS)}, got {setting!r}")
     if setting == "none" or (setting == "auto" and data.meta.get("source") != "import"):
         return None, None
-    fit = fit_linear_second_order(data, train_ids)
+    fits = [fit_linear_second_order(data, train_ids)]
+    try:
+        fits.append(fit_linear_rollout(data, train_ids, input_hold=input_hold))
+    except UserError:  # several sample steps: the least-squares fit alone
+        pass
     why = "--prior linear" if setting == "linear" else "auto: imported recordings"
-    note = (f"prior: the least-squares linear model of {len(train_ids)} training trajector"
-            f"{'y' if len(train_ids) == 1 else 'ies'} (q̈ residual rms "
-            f"{fit.info['accel_rms']:.3g}); the networks learn the correction ({why})")
+    trained = (f"{len(train_ids)} training trajector"
+               f"{'y' if len(train_ids) == 1 else 'ies'}")
+    if len(fits) == 1:
+        fit = fits[0]
+        note = (f"prior: the linear model fitted by least squares on q̈ on {trained} (q̈ "
+                f"residual rms {fit.info['accel_rms']:.3g}; the samples are not at one step, "
+                f"so no rollout fit); the networks learn the correction ({why})")
+        return prior_text(fit), note
+    judge = list(val_ids) if len(val_ids) else list(train_ids)
+    horizon = fits[1].info["horizon"]
+    scores = [window_error(f, data, judge, horizon=horizon, input_hold=input_hold)
+              for f in fits]
+    fit = fits[1] if scores[1] <= scores[0] or not math.isfinite(scores[0]) else fits[0]
+    how = "by least squares on q̈" if fit.kind == "linear2" else "by its rollout error"
+    where = "validation" if len(val_ids) else "training"
+    note = (f"prior: the linear model fitted {how} on {trained} ({horizon:g} s rollout error "
+            f"on the {where} trajectories: least squares {scores[0]:.3g}, rollout fit "
+            f"{scores[1]:.3g}); the networks learn the correction ({why})")
     return prior_text(fit), note
 
 

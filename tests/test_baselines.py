@@ -13,13 +13,12 @@ from datagen import make_dataset, msd_matrices
 
 from softpinn.errors import UserError
 from softpinn.learn._baseline_errors import rollout_errors
+from softpinn.learn._baseline_kinds import baseline_from_dict, fit_baseline
 from softpinn.learn._baselines import (
     ARX,
     LinearSecondOrder,
     NoMotion,
-    baseline_from_dict,
     fit_arx,
-    fit_baseline,
     fit_linear_second_order,
 )
 from softpinn.learn._data import load_dataset, trajectories

@@ -4,6 +4,8 @@ baselines and the verdict line beside a network, and ``train --model linear`` en
 from __future__ import annotations
 
 import json
+import re
+import shutil
 
 import pytest
 from datagen import make_dataset
@@ -90,7 +92,8 @@ def test_predict_json_has_the_baselines_and_verdict(run, data, capsys):
     bl = one["baselines"]
     assert bl["train_trajectories"] == [0, 1, 2, 3] and bl["test_trajectories"] == [4]
     assert {s["name"] for s in bl["scores"]} == {"no motion", "ARX (order 2)",
-                                                 "linear 2nd order"}
+                                                 "linear 2nd order",
+                                                 "linear 2nd order, rollout fit"}
     assert one["verdict"].startswith("blackbox network: at 2 s ")
     many = _json(capsys, ["predict", str(run), str(data), "--horizon", "1", "2", "--json"])
     assert [r["horizon"] for r in many["results"]] == [1.0, 2.0]
@@ -99,23 +102,41 @@ def test_predict_json_has_the_baselines_and_verdict(run, data, capsys):
 
 
 def test_train_linear_and_predict_end_to_end(linear, data, capsys):
-    for name in ("config.json", "metrics.json", "arx.json", "linear2.json", "no_motion.json"):
+    for name in ("config.json", "metrics.json", "arx.json", "linear2.json",
+                 "linear2_rollout.json", "no_motion.json"):
         assert (linear / name).is_file(), name
     cfg = json.loads((linear / "config.json").read_text())
     assert cfg["model"]["kind"] == "linear" and cfg["split"] == {"train": [0, 1, 2, 3],
                                                                  "test": [4]}
     metrics = json.loads((linear / "metrics.json").read_text())
     assert metrics["arx"]["one_step_rms"] > 0 and metrics["linear2"]["accel_rms"] >= 0
+    oe = metrics["linear2_rollout"]  # the rollout fit starts at least squares, never worse
+    assert oe["fit"] == "rollout" and oe["rollout_error"] <= oe["least_squares_rollout_error"]
     assert json.loads((linear / "arx.json").read_text())["order"] == 2
     capsys.readouterr()
     assert main(["predict", str(linear), str(data), "--horizon", "1", "3"]) == 0
     out = capsys.readouterr().out
     assert "rollout error over trajectory 4" in out
     assert "  1 s: no motion " in out and "  3 s: no motion " in out
-    assert "best: linear 2nd order at every horizon" in out
+    # a linear system: one of the second-order fits is best
+    assert re.search(r"best: linear 2nd order(, rollout fit)? at every horizon", out), out
     doc = _json(capsys, ["predict", str(linear), str(data), "--horizon", "1", "--json",
                          "--trajectories", "all"])
-    assert doc["best"] == ["linear 2nd order"] and doc["trajectories"] == [0, 1, 2, 3, 4]
+    assert doc["best"][0].startswith("linear 2nd order") and doc["trajectories"] == [0, 1, 2,
+                                                                                   3, 4]
+
+
+def test_a_linear_run_from_before_the_rollout_fit_still_predicts(linear, data, capsys,
+                                                                  tmp_path):
+    old = tmp_path / "old"
+    shutil.copytree(linear, old)
+    (old / "linear2_rollout.json").unlink()
+    cfg = json.loads((old / "config.json").read_text())
+    for key in ("files", "names"):
+        del cfg["model"][key]["linear2_rollout"]
+    (old / "config.json").write_text(json.dumps(cfg))
+    doc = _json(capsys, ["predict", str(old), str(data), "--horizon", "1", "--json"])
+    assert {s["kind"] for s in doc["baselines"]["scores"]} == {"no_motion", "arx", "linear2"}
 
 
 def test_linear_refusals_are_one_line(linear, data, tmp_path, capsys):

@@ -22,6 +22,7 @@ from softpinn.errors import UserError
 from softpinn.learn import ModelConfig, TrainConfig, load_run, make_model, train
 from softpinn.learn._baselines import fit_linear_second_order
 from softpinn.learn._data import load_dataset
+from softpinn.learn._output_error import fit_linear_rollout, window_error
 from softpinn.learn._prior import prior_text, resolve_prior
 
 N, M = 3, 2
@@ -119,10 +120,15 @@ def prior_run(pendulum, tmp_path_factory):
 
 def test_auto_fits_the_prior_on_imports_only(pendulum, tmp_path):
     data = load_dataset(pendulum)
-    text, note = resolve_prior("auto", data, np.array([0, 1]))
-    fit = fit_linear_second_order(data, [0, 1])
-    assert json.loads(text)["K"] == (-fit.A_q).tolist()
+    text, note = resolve_prior("auto", data, np.array([0, 1]), np.array([2]))
+    fits = [fit_linear_second_order(data, [0, 1]), fit_linear_rollout(data, [0, 1])]
+    # the prior is the fit with the lower rollout error on the validation trajectory
+    errors = [window_error(f, data, [2], horizon=fits[1].info["horizon"]) for f in fits]
+    chosen = fits[int(np.argmin(errors))]
+    assert json.loads(text)["K"] == (-chosen.A_q).tolist()
     assert "2 training trajectories" in note and "auto: imported recordings" in note
+    assert f"least squares {errors[0]:.3g}, rollout fit {errors[1]:.3g}" in note
+    assert "validation trajectories" in note
     simulated = make_dataset(tmp_path / "msd.npz", trajectories=2, duration=1.0)
     assert resolve_prior("auto", load_dataset(simulated), np.array([0])) == (None, None)
     assert resolve_prior("none", data, np.array([0])) == (None, None)

@@ -29,6 +29,7 @@ from softpinn.bridge.analysis.baselines import (
     BaselineComparison,
     BaselineScore,
     compare_baselines,
+    fit_options,
     verdict,
 )
 from softpinn.bridge.cli._jax import enable_x64
@@ -206,7 +207,8 @@ def _comparison(info, data, test, horizons, reset_every, input_hold):
               f"trajectories, and its training file {source} is not at hand as it was",
               file=sys.stderr)
         return None
-    models = [(name, fit_baseline(kind, fit_data, train, **options))
+    models = [(name, fit_baseline(kind, fit_data, train,
+                                  **fit_options(kind, options, input_hold)))
               for name, kind, options in BASELINES]
     return score_baselines(models, data, train, test, horizons, reset_every, input_hold)
 
@@ -258,8 +260,10 @@ def _predict_linear(args, info, traj, horizons) -> int:
                             "baseline run (train --model linear), scored at the data's step")
     run_dir = Path(args.run)
     models = []
-    for name, kind, _ in BASELINES:
-        models.append((name, baseline_from_dict(read_json(run_dir / info["model"]["files"][kind]))))
+    files = info["model"]["files"]
+    for name, kind, _ in BASELINES:  # a run fitted before a kind was added lacks its file
+        if kind in files:
+            models.append((name, baseline_from_dict(read_json(run_dir / files[kind]))))
     data = load_dataset(args.data, n=info["model"]["n"], m=info["model"]["m"])
     data = with_actuator(data, run_actuator(info.get("actuator", {}).get("text", "none"), data.m))
     same = data.sha256 == info["dataset"]["sha256"]

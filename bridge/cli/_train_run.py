@@ -159,14 +159,16 @@ def _actuator_text(info: dict) -> str:
 
 
 #: the files of a linear baseline run, in the order written (config.json, the run's mark, last)
-LINEAR_FILES = ("no_motion.json", "arx.json", "linear2.json", "metrics.json", "config.json")
+LINEAR_FILES = ("no_motion.json", "arx.json", "linear2.json", "linear2_rollout.json",
+                "metrics.json", "config.json")
 #: format of a linear baseline run's config.json
 LINEAR_FORMAT = "softpinn-linear-run"
 
 
 def train_linear(args) -> int:
     """``train --model linear``: no motion, ARX (order 2) and the linear second-order model
-    fitted by least squares on the training trajectories (closed form, seconds), each written
+    fitted by least squares on the training trajectories (closed form) and by its rollout error
+    (:mod:`softpinn.learn`'s ``fit_linear_rollout``, seconds), each written
     as its ``to_dict`` JSON, with config.json (the split) and metrics.json (the fit
     residuals): every file whole (:func:`softpinn.files.write_json`)."""
     check_linear_flags(args)
@@ -211,12 +213,13 @@ def train_linear(args) -> int:
     if args.json:
         print(json.dumps({"run": str(out), **nulls(metrics)}, allow_nan=False))
         return 0
-    arx, lin = fits["arx"], fits["linear2"]
+    arx, lin, oe = fits["arx"], fits["linear2"], fits["linear2_rollout"]
     print(f"fitted ARX (order 2) and a linear second-order model on {len(train_ids)} "
           f"trajector{'y' if len(train_ids) == 1 else 'ies'} in {seconds:.2g} s: ARX one-step "
           f"rms {arx['one_step_rms']:.4e} (spectral radius {arx['spectral_radius']:.4g}), "
           f"linear2 q̈ rms {lin['accel_rms']:.4e} (largest real eigenvalue "
-          f"{lin['max_real_eigenvalue']:.3g})")
+          f"{lin['max_real_eigenvalue']:.3g}); fitted by its {oe['horizon']:.3g} s rollout "
+          f"error: {oe['least_squares_rollout_error']:.4e} -> {oe['rollout_error']:.4e}")
     print(_actuator_text(config))
     print(held_out_text(out, SimpleNamespace(test_trajectories=test,
                                              split_seed=args.split_seed), data))

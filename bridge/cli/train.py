@@ -15,6 +15,7 @@ def add_parser(subparsers):
             "Writes RUN/config.json, model.eqx, checkpoint.eqx, history.csv, metrics.json, "
             "loss.png (one seed-<s>/ folder per member of an ensemble). --model linear fits "
             "the linear baselines instead (RUN/config.json, arx.json, linear2.json, "
+            "linear2_rollout.json, "
             "no_motion.json, metrics.json)."
         ),
     )

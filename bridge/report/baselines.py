@@ -61,18 +61,19 @@ def _baseline_cell(score: BaselineScore, tested: int) -> str:
 def baseline_rows(networks: Mapping[str, Errors], comparison: BaselineComparison,
                   ) -> list[tuple[str, ...]]:
     """One row per network (its name, then its error at each of :func:`horizons`, — where it
-    has none there), then one per baseline."""
+    has none there), then one per baseline the comparison holds (a study stored before a
+    baseline kind was added lacks its rows)."""
     hs = horizons(comparison)
     rows = []
     for label, errors in networks.items():
         cells = [_at(errors, h) for h in hs]
         rows.append((label, *("—" if c is None else _cell(*c) for c in cells)))
     for name, kind, _ in BASELINES:
-        cells = []
-        for h in hs:
-            score = next(s for s in comparison.at(h) if s.kind == kind)
-            cells.append(_baseline_cell(score, len(comparison.test)))
-        rows.append((name, *cells))
+        scores = [next((s for s in comparison.at(h) if s.kind == kind), None) for h in hs]
+        if all(s is None for s in scores):
+            continue
+        rows.append((name, *("—" if s is None else _baseline_cell(s, len(comparison.test))
+                             for s in scores)))
     return rows
 
 
