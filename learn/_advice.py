@@ -106,8 +106,9 @@ def recording_defaults(data: Dataset, pairs: int, kind: str, given) -> tuple[dic
     """Settings chosen from recorded data (a file of ``softpinn import``; issue 43, item 5) for
     every one the user did not give (``given``: the setting names typed): a budget of about
     :data:`RECORDING_STEPS` optimizer steps on ``pairs`` training pairs (the CLI default of 1,000
-    epochs took 70 minutes on a recorded arm), the recipe's learning rate, and inputs linear
-    between samples (recorded commands are samples of a continuous signal). Returns the
+    epochs took 70 minutes on a recorded arm), the recipe's learning rate, inputs linear
+    between samples (recorded commands are samples of a continuous signal), and held-out
+    rollouts (``test_with`` "rollout") to pick the best epoch. Returns the
     settings and one line that says what was chosen and why (None: nothing chosen)."""
     if data.meta.get("source") != "import":
         return {}, None
@@ -125,6 +126,10 @@ def recording_defaults(data: Dataset, pairs: int, kind: str, given) -> tuple[dic
     if "input_hold" not in given:
         chosen["input_hold"] = "linear"
         why.append("input hold linear (recorded inputs are samples of a continuous signal)")
+    if "test_with" not in given and "test_steps" not in given:
+        chosen["test_with"] = "rollout"
+        why.append("the best epoch picked by held-out rollouts of up to 5 s (predict's error; "
+                   "a one-step loss on noisy derivatives can improve while rollouts get worse)")
     if not chosen:
         return {}, None
     return chosen, ("settings for recorded data (this file is an import): " + ", ".join(why)

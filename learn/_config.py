@@ -28,8 +28,8 @@ LOSSES = ("pair", "accel", "rollout")
 ENSEMBLE_MODES = ("auto", "vmap", "sequential")
 SEED_MAX = 2**32 - 1
 INPUT_HOLDS = ("constant", "linear")
-#: what held-out pairs are scored with: the training loss, or the pair loss (eq. 8/9)
-TEST_WITH = ("loss", "pair")
+#: held-out data scored with: the training loss, eq. 8/9, or rollouts of ``test_steps`` steps
+TEST_WITH = ("loss", "pair", "rollout")
 #: The groups of :class:`TrainConfig`'s settings, in the order ``softpinn train --help`` shows.
 GROUPS = ("budget", "optimizer", "loss", "split", "ensemble", "devices")
 #: Settings that may change when a run is resumed (the others would make it another run).
@@ -53,9 +53,8 @@ class TrainConfig:
     ``model``: the network (:class:`learn._model_config.ModelConfig`; its n, m must match the data).
     ``epochs``: passes over the training pairs in minibatches of ``batch_size`` (clipped to the
     number of pairs; the remainder of each shuffled epoch is dropped so shapes never change).
-    ``batch_size`` None (the default) takes ``max(64, pairs // 100)``: batches of 64 train
-    small data sets well (a mass-spring-damper reached a test loss of 1e-8 in 150 epochs where
-    batches of 1,000 stalled at 7e-5), and larger data sets get about 100 steps per epoch.
+    ``batch_size`` None (the default) takes ``max(64, pairs // 100)`` (batches of 64: a
+    mass-spring-damper at 1e-8 in 150 epochs, 1,000 stalled at 7e-5; ~100 steps an epoch).
     ``lr``: peak AdamW learning rate; ``schedule``: "cosine" (linear warmup over ``warmup`` of
     all steps, then cosine decay to ``lr * lr_final``), "exponential" (warmup, then exponential
     decay to ``lr * lr_final`` at the last step) or "constant"; ``weight_decay`` of AdamW;
@@ -75,31 +74,28 @@ class TrainConfig:
     (= ``rollout_steps``: :func:`learn._objective.rollout_stage`).
     ``equilibrium_weight`` / ``force_weight`` > 0 add the static-equilibrium labels of the data
     file (:func:`learn._losses.label_loss`; Section VI-B's "additional labels") to the training
-    loss (not to the test loss, which stays eq. 8/9/10 alone). ``test_with`` "pair" scores the
-    held-out pairs with eq. 8/9 whatever the training loss (one RK4 step per pair, with
-    ``substeps`` and ``input_hold``): with loss "accel" the cheap eq. 10 trains while the
-    one-step prediction error picks the best model and decides ``target_loss``/``patience``.
+    loss (not to the test loss, which stays eq. 8/9/10 alone). ``test_with`` "pair" scores
+    held-out pairs with eq. 8/9 whatever the training loss (with loss "accel": eq. 10 trains,
+    the one-step prediction error picks the model and decides ``target_loss``/``patience``);
+    "rollout" scores held-out windows of ``test_steps`` steps by predict's rollout error in q
+    (on noisy recordings a one-step loss can improve while rollouts get worse, RESULTS.md).
     ``seed``: first seed; ``seeds``: ensemble size K (seeds seed, seed+1, ...);
     ``ensemble``: "vmap", "sequential" or "auto" (vmap on an accelerator, sequential on CPU,
     where vmapping was measured slower; see benchmarks/bench_train.py).
     ``test_trajectories``: ids (tuple), a count (int), a fraction (float) or None (the file's
     recorded test split, else 20%: :func:`learn._splits.split_trajectories`);
     ``split_seed`` draws the split, the ``samples`` subset of training pairs and the
-    ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each;
-    a large test set, e.g. task 5's 1000 Hz data with five times the training pairs, is costly
-    to evaluate every few epochs). ``validation``: training trajectories held out to pick the
-    model (the best epoch, patience, overfit, target loss: then on the validation loss, and the
-    test loss is only recorded), see :func:`learn._splits.validation_split`.
+    ``test_samples`` subset of held-out pairs the test loss is evaluated on (None: all of each,
+    about ten windows a horizon for test_with "rollout"; task 5's large test set is costly).
+    ``validation``: training trajectories held out to pick the model (best epoch, patience,
+    overfit, target loss; the test loss is only recorded): :func:`learn._splits.validation_split`.
     ``patience``: stop a member after that many evaluations without a better test loss (None:
     never); the saved model is the one with the best test loss. ``overfit``: stop a member
     once its test loss has stayed above ``overfit`` times its best for ``overfit_evals``
-    evaluations in a row (None: never): a network that overfits (task 5's fixed-step data: 7x
-    its best 8 epochs after it) stops long before ``patience`` would stop it, while one whose
-    test loss wanders near its best (within 1.4x in every pause of the task 5 runs that
-    improved again) trains on. ``target_loss``: stop a member
-    once its test loss is at or below it, in AdamW or L-BFGS (None: never; the time to reach a
-    loss, as RESULTS.md's training-speed comparisons measure it). ``eval_every``: epochs between
-    test-loss evaluations. ``checkpoint_every``: epochs between checkpoints.
+    evaluations in a row (None: never; task 5's overfitting network: 7x its best 8 epochs
+    later). ``target_loss``: stop a member once its test loss is at or below it (None: never;
+    RESULTS.md's time to a loss). ``eval_every``, ``checkpoint_every``: epochs between
+    test-loss evaluations, checkpoints.
     ``lbfgs_steps``: L-BFGS iterations on the full training set after AdamW (0: none), starting
     from the best AdamW parameters, in calls of ``lbfgs_chunk`` iterations.
     """
@@ -118,9 +114,8 @@ class TrainConfig:
     lr_final: float = _f(0.01, "optimizer", "final lr as a fraction of lr")
     weight_decay: float = _f(1e-4, "optimizer", "AdamW weight decay")
     init: str | None = _f(None, "optimizer", "start from the best model of an earlier run "
-                          "folder with the same network (e.g. one trained with loss accel, "
-                          "eq. 10, as a warm start for the pair loss); default: a fresh, "
-                          "seeded initialisation")
+                          "folder with the same network (e.g. loss accel's, eq. 10, before "
+                          "the pair loss); default: a fresh, seeded initialisation")
     clip_norm: float = _f(0.0, "optimizer", "global gradient-norm clip (0: none)")
     # loss
     loss: str = _f("pair", "loss", "pair: one RK4 step per pair, eq. 8/9; accel: eq. 10; "
@@ -136,10 +131,10 @@ class TrainConfig:
         "(softpinn/actuator.py): TAU:DELAY in s (comma lists: one per input), none, data (the "
         "file's), identify (fitted to the data) or auto (data, else identify on imports)")
     prior: str = _f(
-        "auto", "loss", "linear: the networks start as the least-squares linear model "
-        "M q̈ + D q̇ + K q = B u + c of the training data and learn the correction on it "
-        "(learn/_prior.py); none: from scratch; auto: linear on imported recordings",
-        PRIOR_SETTINGS)
+        "auto", "loss", "linear: the networks start as the linear model M q̈ + D q̇ + K q = "
+        "B u + c of the training data (least squares or rollout fit, whichever rolls out "
+        "better) and learn the correction (learn/_prior.py); none: from scratch; auto: linear "
+        "on imported recordings", PRIOR_SETTINGS)
     substeps: int = _f(1, "loss", "RK4 sub-steps per pair")
     input_hold: str = _f("constant", "loss", "the input between two samples: held or "
                          "interpolated linearly", INPUT_HOLDS)
@@ -161,11 +156,13 @@ class TrainConfig:
                       "p came with it, velocity when it has none or computed ones (an import)",
                       MOMENTA)
     test_with: str = _f(
-        "loss", "loss", "what held-out pairs are scored with: loss (the training loss) or pair "
-        "(eq. 8/9, one RK4 step per pair with --substeps and --input-hold, the one-step error "
-        "of `softpinn predict`); the best model, --target-loss, --patience and history's "
-        "test_loss then follow it (e.g. with loss accel: eq. 10 trains, the prediction error "
-        "picks)", TEST_WITH)
+        "loss", "loss", "what held-out data are scored with: loss (the training loss), pair "
+        "(eq. 8/9 one step: predict's one-step error) or rollout (windows of --test-steps "
+        "steps, mean |q - q̂|²: predict's rollout error); the best model, --target-loss, "
+        "--patience and history's test_loss follow it", TEST_WITH)
+    test_steps: int | None = _f(
+        None, "loss", "steps of test_with rollout's windows (default: 5 s at the data's rate, "
+        "at most the shortest held-out trajectory; the run records it)")
     equilibrium_weight: float = _f(
         0.0, "loss", "weight of the static-equilibrium labels G(q*) = A(q*) u* of the data file "
         "(eq_q, eq_u): + weight * mean |G - A u|^2 / mean (|G|^2 + |A u|^2) / 2 at the "
@@ -283,7 +280,10 @@ class TrainConfig:
                 or not isinstance(self.target_loss, int | float)
                 or not math.isfinite(self.target_loss) or self.target_loss <= 0):
             raise UserError(f"target_loss: expected a number > 0, got {self.target_loss!r}")
-        for name in ("samples", "test_samples"):
+        if self.test_steps is not None and self.test_with != "rollout":
+            raise UserError(f"test_steps: the windows of test_with 'rollout', not "
+                            f"{self.test_with!r}")
+        for name in ("samples", "test_samples", "test_steps"):
             value = getattr(self, name)
             if value is not None and (isinstance(value, bool) or not isinstance(value, int)
                                       or value < 1):

@@ -105,6 +105,25 @@ def rollout_stage(config: TrainConfig, epoch: int) -> int:
     return sched[stage]
 
 
+#: the default horizon (s) of the held-out windows of ``test_with`` "rollout"
+TEST_HORIZON = 5.0
+
+
+def resolve_test_steps(config: TrainConfig, data, held_ids) -> TrainConfig:
+    """``config`` with ``test_steps`` set where ``test_with`` is "rollout" and it is None:
+    :data:`TEST_HORIZON` seconds at the data's median sample step, at most the samples of the
+    shortest held-out trajectory (``held_ids``: validation and test) less one."""
+    if config.test_with != "rollout" or config.test_steps is not None:
+        return config
+    ids = [int(k) for k in np.asarray(held_ids).tolist()]
+    if not ids:
+        return config
+    dt = float(np.median(np.diff(data.t[data.indices(ids[0])])))
+    shortest = min(int(data.indices(k).size) for k in ids) - 1
+    steps = max(1, min(int(round(TEST_HORIZON / dt)) if dt > 0 else shortest, shortest))
+    return dataclasses.replace(config, test_steps=steps)
+
+
 def check_rollout_schedule(config: TrainConfig, data, train_ids) -> None:
     """Refuse, in one line naming the flag, a ``rollout_schedule`` whose last horizon is longer
     than the shortest training trajectory (in steps: its samples less one)."""
@@ -149,6 +168,9 @@ def errors_function(config: TrainConfig, *, test: bool = False) -> Callable:
     if test and config.test_with == "pair" and config.loss != "pair":
         config = dataclasses.replace(config, loss="pair", accel_space="acceleration",
                                      accel_weights=None, accel_labels="recorded")
+    if test and config.test_with == "rollout":  # q alone (λ = 0): predict's rollout error
+        return _configured(dataclasses.replace(config, loss="rollout", loss_weight=0.0),
+                           accel_errors, rollout_errors, pair_errors, config.test_steps)
     return _configured(config, accel_errors, rollout_errors, pair_errors)
 
 

@@ -36,6 +36,9 @@ from softpinn.learn._objective import (
     training_box,
 )
 
+#: windows per evaluation chunk where held-out data are scored by rollouts (test_with rollout)
+ROLLOUT_EVAL_SIZE = 16
+
 
 def _chunked(pairs: Pairs, size: int) -> tuple[list[Pairs], list[jax.Array]]:
     """Split ``pairs`` into chunks of exactly ``size`` (the last padded with copies of the
@@ -86,8 +89,11 @@ class Programs:
 
         self._eval_chunk = weighted_sum_of(errors_function(config))
         self._eval_test_chunk = (weighted_sum_of(errors_function(config, test=True))
-                                 if config.test_with == "pair" else self._eval_chunk)
-        self.eval_size = max(batch, 256)
+                                 if config.test_with in ("pair", "rollout")
+                                 else self._eval_chunk)
+        # held-out windows of test_with "rollout" are long (seconds of steps): chunks of a
+        # few, so that padding a short held-out set to a chunk costs little
+        self.eval_size = ROLLOUT_EVAL_SIZE if config.test_with == "rollout" else max(batch, 256)
         self._set_eval_data(train, test)
         self.init_opt = jax.jit(over_members(self.opt.init, (0,)))
 

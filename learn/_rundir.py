@@ -64,6 +64,9 @@ def _plot_title(run_dir: Path) -> str:
     if train.get("test_with") == "pair" and train.get("loss") != "pair":
         return (f"{kind} network on {name}{seed}: training loss ({train.get('loss')}, solid), "
                 "test: one-step error (eq. 8/9, dashed)")
+    if train.get("test_with") == "rollout":
+        return (f"{kind} network on {name}{seed}: training loss ({train.get('loss')}, solid), "
+                f"held out: rollout error over {train.get('test_steps')} steps (dashed)")
     return f"{kind} network on {name}{seed}: loss (train solid, test dashed)"
 
 

@@ -60,7 +60,12 @@ from softpinn.learn._ensemble import (
 from softpinn.learn._losses import equilibria_of
 from softpinn.learn._members import resolve_ensemble_mode
 from softpinn.learn._models import ensure_dtype
-from softpinn.learn._objective import check_rollout_schedule, to_pairs, to_windows
+from softpinn.learn._objective import (
+    check_rollout_schedule,
+    resolve_test_steps,
+    to_pairs,
+    to_windows,
+)
 from softpinn.learn._prior import resolve_prior
 from softpinn.learn._programs import PROGRAMS, ProgramCache, _chunked
 from softpinn.learn._rundir import (
@@ -112,11 +117,18 @@ class TrainResult:
 
 
 def _held_out(data, ids, config, state, dtype):
-    """The held-out pairs (windows of loss "rollout") of trajectories ``ids``, as numpy and as
-    the arrays the programs take (at most ``config.test_samples`` of them)."""
-    if config.loss == "rollout":
-        held = make_windows(data, ids, horizon=config.rollout_steps, state=state,
-                            samples=config.test_samples, seed=config.split_seed)
+    """The held-out pairs (windows of loss "rollout" or of ``test_with`` "rollout") of
+    trajectories ``ids``, as numpy and as the arrays the programs take (at most
+    ``config.test_samples`` of them)."""
+    if config.loss == "rollout" or config.test_with == "rollout":
+        h, samples = config.rollout_steps, config.test_samples
+        if config.test_with == "rollout":  # long windows: about ten per horizon by default
+            h = config.test_steps
+            if samples is None:
+                samples = sum(-(-10 * int(data.indices(int(k)).size) // h)
+                              for k in np.asarray(ids).tolist())
+        held = make_windows(data, ids, horizon=h, state=state, samples=samples,
+                            seed=config.split_seed)
         return held, to_windows(held, dtype)
     held = make_pairs(data, ids, state=state, samples=config.test_samples,
                       seed=config.split_seed, accel=config.accel_labels)
@@ -299,11 +311,13 @@ def train(
     prior_info = stored.get("prior") if resume else None
     if not resume and config.model.prior is None:  # the linear prior, fitted once (_prior.py)
         asked = config.prior
-        text, told = resolve_prior(asked, data, train_ids)
+        text, told = resolve_prior(asked, data, train_ids, val_ids,
+                                   input_hold=config.input_hold)
         if text is not None:
             config = dataclasses.replace(config, prior="linear",
                                          model=dataclasses.replace(config.model, prior=text))
             prior_info = {"setting": asked, "note": told}
+    config = resolve_test_steps(config, data, np.concatenate([val_ids, test_ids]))
     state = config.model.state_kind
     if config.loss == "rollout":
         check_rollout_schedule(config, data, train_ids)

@@ -219,6 +219,8 @@ def test_recordings_get_a_budget_and_say_so(tmp_path, capsys):
     # 3 trajectories of 200 samples: 597 pairs, batch 64, 9 steps an epoch: 1000 epochs cap
     assert info["epochs"] == 1000 and "epochs 1000" in err
     assert info["lr"] == 2e-3 and info["input_hold"] == "linear"
+    # held-out rollouts pick the epoch: 5 s at 50 Hz, capped by the 4 s test trajectory
+    assert (info["test_with"], info["test_steps"]) == ("rollout", 199)
 
 
 def test_recording_defaults_leave_what_the_user_gave(tmp_path):
@@ -227,7 +229,10 @@ def test_recording_defaults_leave_what_the_user_gave(tmp_path):
     data = _save(tmp_path / "r.npz", _record(None, trajectories=2, duration=2.0),
                  {"source": "import"})
     chosen, why = recording_defaults(data, 6400, "lagrangian", {"lr"})
-    assert chosen == {"epochs": 100, "input_hold": "linear"} and "10,000" in why
+    assert chosen == {"epochs": 100, "input_hold": "linear", "test_with": "rollout"}
+    assert "10,000" in why and "held-out rollouts of up to 5 s" in why
+    kept, _ = recording_defaults(data, 6400, "lagrangian", {"test_with"})
+    assert "test_with" not in kept
     sim = _save(tmp_path / "s.npz", _record(None, trajectories=2, duration=2.0),
                 {"source": "simulate"})
     assert recording_defaults(sim, 6400, "lagrangian", set()) == ({}, None)

@@ -384,8 +384,42 @@ def test_accel_training_scored_with_the_pair_loss(msd, tmp_path):
     with pytest.raises(UserError, match=r"^test_with: 'pair' scores held-out pairs; loss "
                                         r"'rollout' holds out windows"):
         blackbox_train_config(loss="rollout", test_with="pair")
-    with pytest.raises(UserError, match=r"^test_with: expected one of \['loss', 'pair'\]"):
-        blackbox_train_config(test_with="rollout")
+    with pytest.raises(UserError, match=r"^test_with: expected one of \['loss', 'pair', "
+                                        r"'rollout'\]"):
+        blackbox_train_config(test_with="steps")
+
+
+def test_rollout_scoring_picks_the_model_that_rolls_out_best(msd, tmp_path):
+    # test_with "rollout": the pair loss trains, held-out windows of test_steps steps are
+    # scored by predict's rollout error in q, and that picks the best epoch
+    from softpinn.learn._data import make_windows
+    from softpinn.learn._losses import rollout_errors
+    from softpinn.learn._objective import to_windows
+    from softpinn.learn._splits import split_trajectories
+
+    kw = dict(input_hold="linear", checkpoint_every=4)
+    plain = train(msd, blackbox_train_config(**kw), tmp_path / "a").members[0]
+    res = train(msd, blackbox_train_config(test_with="rollout", **kw), tmp_path / "b")
+    scored = res.members[0]
+    # the same training (epoch 0's full-set loss summed in other chunks: the last bits differ)
+    np.testing.assert_allclose([r["train_loss"] for r in scored.history],
+                               [r["train_loss"] for r in plain.history], rtol=1e-12)
+    # the default: 5 s at the data's step, capped by the 4 s held-out trajectory (81 samples)
+    assert res.config.test_steps == 80
+    stored = ckpt.read_json(tmp_path / "b" / "config.json")["train"]
+    assert (stored["test_with"], stored["test_steps"]) == ("rollout", 80)
+    _, test_ids = split_trajectories(msd, test=(4,))
+    windows = to_windows(make_windows(msd, test_ids, horizon=80), "float64")
+    best = float(jnp.mean(rollout_errors(scored.model, windows, horizon=80, weight=0.0,
+                                         input_hold="linear")))
+    assert scored.metrics["best_test_loss"] == pytest.approx(best, rel=1e-9)
+    assert min(r["test_loss"] for r in scored.history) == pytest.approx(best, rel=1e-9)
+    assert plain.metrics["best_test_loss"] != pytest.approx(best, rel=1e-2)
+    with pytest.raises(UserError, match=r"^test_steps: the windows of test_with 'rollout', "
+                                        r"not 'loss'"):
+        blackbox_train_config(test_steps=10)
+    with pytest.raises(UserError, match=r"^test_steps: expected an integer >= 1"):
+        blackbox_train_config(test_with="rollout", test_steps=0)
 
 
 def test_lbfgs_compiles_once(msd, tmp_path):

@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from softpinn import locks
-from softpinn.bridge.analysis.baselines import BaselineComparison, verdict
+from softpinn.bridge.analysis.baselines import BASELINES, BaselineComparison, verdict
 from softpinn.bridge.base import outputs
 from softpinn.bridge.cosserat.settings import NETWORKS, CosseratPlan, make_plan
 from softpinn.bridge.cosserat.stages import (
@@ -117,7 +117,7 @@ def run_variant(plan: CosseratPlan, variant: str, stages: Stages, progress) -> d
                           lambda f: stage_actuator(plan, imported))
     networks: dict[str, dict] = {}
     train_base = {k: base[k] for k in ("samples", "batch_size", "input_hold", "loss",
-                                       "train_seed", "prior")}
+                                       "train_seed", "prior", "test_with")}
     for network in plan.networks:
         settings = {"import": imp_settings, **train_base, "actuator": act_settings,
                     "network": base["networks"][plan.networks.index(network)]}
@@ -130,7 +130,8 @@ def run_variant(plan: CosseratPlan, variant: str, stages: Stages, progress) -> d
         networks[network.kind] = {"train": trained, "predict": predicted}
     baselines = stages.run(f"{variant}/baselines",
                            {"import": imp_settings, "horizons": list(plan.horizons),
-                            "input_hold": plan.input_hold, "actuator": act_settings},
+                            "input_hold": plan.input_hold, "actuator": act_settings,
+                            "baselines": [list(b) for b in BASELINES]},
                            lambda f: stage_baselines(plan, imported, actuator))
     return {"record": recorded, "import": imported, "actuator": actuator, "networks": networks,
             "baselines": baselines, "verdicts": verdicts(networks, baselines)}

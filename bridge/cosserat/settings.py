@@ -94,8 +94,11 @@ class CosseratPlan:
     #: would), ``none``, or ``TAU:DELAY``; every network and baseline gets the same
     actuator: str = "identify"
     #: the networks' linear prior (``TrainConfig.prior``): auto gives linear on the imported
-    #: recordings, so the networks start as the least-squares linear model
+    #: recordings, so the networks start as the linear model (least squares or rollout fit)
     prior: str = "auto"
+    #: what picks the best epoch on the validation trajectories (``TrainConfig.test_with``):
+    #: rollouts of up to 5 s, as ``softpinn train`` does on imported recordings
+    test_with: str = "rollout"
 
     def network(self, kind: str) -> Network:
         return next(n for n in self.networks if n.kind == kind)

@@ -6,6 +6,7 @@ returns a JSON-ready dict (:class:`bridge.tasks.stages.Stages` stores it)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any
@@ -28,6 +29,7 @@ from softpinn.learn import (
     predict,
     range_box,
     resolve_actuator,
+    resolve_prior,
     run_actuator,
     train,
     with_actuator,
@@ -116,14 +118,22 @@ def stage_train(plan: CosseratPlan, network: Network, imported: dict, actuator: 
     kept where there is one)."""
     data = load_dataset(imported["train_path"])
     epochs = int(network.epochs)
+    # the prior is chosen on the validation trajectories, which this run holds out as its
+    # "test" ones (the test trajectories are not in its file): resolved here, where they are
+    # known, as train() would resolve it with validation trajectories of its own
+    felt = with_actuator(data, run_actuator(actuator["text"], data.m))
+    prior, prior_note = resolve_prior(plan.prior, felt, list(imported["train"]),
+                                      list(imported["validation"]),
+                                      input_hold=plan.input_hold)
+    model = dataclasses.replace(_model_config(network, data.m), prior=prior)
     tc = TrainConfig(
-        model=_model_config(network, data.m), epochs=epochs, batch_size=plan.batch_size,
+        model=model, epochs=epochs, batch_size=plan.batch_size,
         lr=float(network.lr), seed=plan.train_seed, samples=plan.samples,
         test_trajectories=tuple(int(i) for i in imported["validation"]),
         validation=0,  # the held-out trajectories of this file are the validation ones already
         input_hold=plan.input_hold, loss=plan.loss, momenta=network.momenta,
         actuator=actuator["text"],
-        prior=getattr(plan, "prior", "auto"),
+        prior="none" if prior is None else "linear", test_with=plan.test_with,
         eval_every=max(1, epochs // 25), checkpoint_every=max(1, epochs // 5),
     )
     run_dir = folder / "run"
@@ -134,7 +144,7 @@ def stage_train(plan: CosseratPlan, network: Network, imported: dict, actuator: 
         return {"run": str(run_dir), "diverged": " ".join(str(exc).split()),
                 "config": tc.to_dict(), "warnings": warnings, "metrics": None}
     return {"run": str(run_dir), "diverged": None, "config": res.config.to_dict(),
-            "metrics": res.metrics, "warnings": warnings,
+            "metrics": res.metrics, "warnings": warnings, "prior": prior_note,
             "pairs": int(res.metrics.get("train_pairs", 0)), "epochs": epochs}
 
 

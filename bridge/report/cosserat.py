@@ -125,8 +125,11 @@ def _settings_lines(run: CosseratRun) -> list[str]:
         f"- actuator: `--actuator {p.actuator}` (the stand-in's own lag and dead time are in "
         "`<variant>/record/cosserat.json`; the study does not give them to the models)",
         f"- prior: `--prior {getattr(p, 'prior', 'auto')}` (auto: the networks start as the "
-        "least-squares linear model of their training trajectories and learn the correction; "
-        "epoch 0 is that model, so the validation loss keeps it unless training finds better)",
+        "linear model of their training trajectories, fitted by least squares or by its rollout "
+        "error, whichever rolls out better, and learn the correction; epoch 0 is that model, "
+        "so the validation score keeps it unless training finds better)",
+        f"- best epoch: `--test-with {getattr(p, 'test_with', 'loss')}` (rollout: the "
+        "validation trajectories' rollout error over up to 5 s picks it)",
         f"- training: loss `{p.loss}`, input hold `{p.input_hold}`, batch {p.batch_size}, "
         f"{'all pairs' if p.samples is None else f'{p.samples} pairs'}, float64, seed "
         f"{p.train_seed}",
