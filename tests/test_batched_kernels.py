@@ -1,11 +1,14 @@
 """Batched forward dynamics (TrueModel.qdd on a batch: the C kernels of
 softpinn.symbolic.codegen._kernel) equal CasADi's own evaluation of the same Function to 1e-13
 relative per state, on the models of benchmarks/bench_peers.py (planar PCC of 1 and 2 segments,
-task5) including straight and nearly straight arms (the Taylor branches); and the kernels'
+task5) including straight and nearly straight arms (the Taylor branches); the kernels'
 shared reciprocals (one division per divisor that divides several times) keep CasADi's results
-for zero, signed-zero, infinite and NaN divisors."""
+for zero, signed-zero, infinite and NaN divisors, their branchless if_else for NaN, signed-zero
+and infinite conditions and branches."""
 
 from __future__ import annotations
+
+import re
 
 import casadi as ca
 import numpy as np
@@ -65,8 +68,9 @@ def test_planar_kernel_divides_once_per_divisor():
     shared = shared_denominators(f)
     src = kernel.kernel_source(f, "k")
     body = src.split("#pragma omp simd", 1)[1]
-    assert body.count(" = 1./w") == len(shared) > 0
-    assert body.count("/w") - body.count(" = 1./w") < divisions - len(shared)
+    reciprocals = len(re.findall(r"double d\d+ = 1\./t\d+;", body))
+    assert reciprocals == len(shared) > 0
+    assert body.count("/t") - reciprocals < divisions - len(shared)
 
 
 def test_shared_reciprocals_keep_casadis_special_values():
@@ -96,11 +100,55 @@ def test_the_cuda_kernel_is_the_c_kernel_with_one_thread_per_state():
     from softpinn.symbolic.codegen._kernel_source import cuda_source, kernel_source
 
     x = ca.SX.sym("x", 2)
-    f = ca.Function("f", [x], [ca.vertcat(ca.sin(x[0]) / x[1], x[0] / x[1] + ca.cos(x[1]))])
+    f = ca.Function("f", [x], [ca.vertcat(ca.sin(x[0]) / x[1], x[0] / x[1] + ca.cos(x[1]),
+                                          ca.if_else(x[0] < 1, x[1], 2 * x[1]))])
     c, cu = kernel_source(f, "f"), cuda_source(f, "f")
-    assert cu.startswith('extern "C" __global__ void f(long n, long ld, const double* const* '
-                         "arg, double* const* res) {")
+    helper, kern = cu.split("#endif\n", 1)  # softpinn_if as a device function, then the kernel
+    assert "__device__" in helper and "softpinn_if" in helper
+    assert kern.startswith('extern "C" __global__ void f(long n, long ld, const double* const* '
+                           "arg, double* const* res) {")
     assert "long i = (long)blockIdx.x * blockDim.x + threadIdx.x;\n  if (i < n) {" in cu
     assert "#pragma omp" not in cu and "restrict " not in cu and "SOFTPINN_ALIGNED" not in cu
-    body = lambda s: s[s.index("    double w0"):]  # noqa: E731
+    body = lambda s: s[s.index("    double t"):]  # noqa: E731
     assert body(cu) == body(c)
+    assert "softpinn_if(" in c
+
+
+def test_branchless_if_else_keeps_casadis_results():
+    """CasADi's if_else (two OP_IF_ELSE_ZERO and a sum) through the kernels' branchless
+    softpinn_if: a NaN condition counts as true, a signed zero as false, and the branch not
+    taken may be infinite or NaN without reaching the result."""
+    x = ca.SX.sym("x", 3)
+    c, a, b = x[0], x[1], x[2]
+    f = ca.Function("sel", [x], [ca.vertcat(ca.if_else(c, a, b), ca.if_else(c < 0.5, a / c, b),
+                                            ca.if_else(ca.logic_not(c), ca.sin(a), b * b))])
+    assert any(f.instruction_id(k) == ca.OP_IF_ELSE_ZERO for k in range(f.n_instructions()))
+    k = kernel.kernels({"sel": f})["sel"]
+    rows = np.array([[1.0, 2.0, 3.0], [0.0, 2.0, 3.0], [-0.0, np.inf, 3.0],
+                     [np.nan, 2.0, np.inf], [0.25, np.nan, 1.0], [2.0, 1.0, np.nan],
+                     [np.inf, -0.0, 1.0], [0.0, np.inf, -np.inf], [-1e-300, 1.0, 2.0]])
+    got = k(rows)[0]
+    want = np.asarray(f.map(rows.shape[0])(rows.T)).T
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    fin = np.isfinite(want)
+    assert np.array_equal(got[~fin & ~np.isnan(want)], want[~fin & ~np.isnan(want)])
+    np.testing.assert_allclose(got[fin], want[fin], rtol=1e-15, atol=0)  # sin: libmvec, 4 ulp
+
+
+def test_large_kernels_keep_the_remainder_loop_and_equal_casadi(monkeypatch):
+    """Above _kernel_source.LARGE instructions (here: the planar arm of one segment with the
+    limit at 0) the kernel keeps C's ?: and the scalar remainder loop (gcc's fast register
+    allocation), with the same results."""
+    from softpinn.symbolic.codegen import _kernel_source
+
+    monkeypatch.setattr(_kernel_source, "LARGE", 0)
+    f = kernel.expand(TrueModel(_planar(1)).functions["forward"])
+    body = kernel.kernel_source(f, "k").split("#pragma omp simd", 1)[1]
+    assert "for (long i = 0; i < n; ++i)" in body and "?" in body
+    assert "softpinn_if(" not in body
+    k = kernel.kernels({"forward": f})["forward"]
+    q, qd, u = _states(2, 0, 37, seed=5)
+    got = k(q, qd, u)[0]
+    want = np.asarray(f.map(37)(q.T, qd.T, u.T)).T
+    per_state = np.max(np.abs(got - want), axis=1) / np.max(np.abs(want), axis=1)
+    assert per_state.max() <= TOLERANCE, per_state.max()

@@ -19,8 +19,10 @@ with ``ctypes`` (which releases the GIL during a call, so Python threads run ker
 :func:`kernels` returns ``None`` when no compiler is found (callers fall back to CasADi);
 :func:`rk4_source` adds a fixed-step RK4 integrator over many trajectories in the same C.
 
-task5's forward dynamics (10,013 SX instructions) runs at 0.4 µs per state on one core
-(CasADi's C with ``map``: 4.8 µs) and compiles in 4-5 s (see RESULTS.md).
+task5's forward dynamics (10,013 SX instructions) runs at 0.32-0.35 µs per state on one core
+of a shared 2-core AVX-512 machine (best and median of 41 alternated rounds, load 1.6; the
+source of before 28 Nov in the same rounds: 0.37-0.40 µs; CasADi's C with ``map``: ~5 µs) and
+compiles in ~3 s.
 """
 
 from __future__ import annotations
@@ -63,13 +65,17 @@ from softpinn.symbolic.codegen._kernel_source import (
 )
 
 #: bump when the generated source (:mod:`.kernel_source`) changes (part of the cache key)
-VERSION = 3
+VERSION = 4
 
-#: vectorising flags (gcc): -O1 plus the vectoriser compiles task5 in ~4.5 s against ~7.5 s at
-#: -O2 for 0.43 against 0.38 µs per state; no scalar epilogue re-vectorised (halves the code);
-#: -fexpensive-optimizations lets -O1 fuse a product and a sum into one FMA where the host has
-#: it (gcc does so from -O2 on): task5 0.42 -> 0.37 µs per state, same compile time, and still
-#: equal to CasADi's evaluation to ~4e-14 relative per state (tests/test_batched_kernels.py)
+#: vectorising flags (gcc): -O1 plus the vectoriser. On the kernels of :mod:`.kernel_source`
+#: -O2 compiles task5 in ~5 s against ~3.5 s and is no faster, nor are -fschedule-insns2,
+#: -fschedule-insns -fsched-pressure (10 s), -fira-region=one/all, -fira-algorithm=priority or
+#: -fno-trapping-math (alternated rounds, 28 Nov); 256-bit vectors are ~1.5x slower than 512.
+#: No scalar epilogue re-vectorised (only kernels above _kernel_source.LARGE instructions
+#: keep one). -fexpensive-optimizations lets -O1 fuse a product and a sum into one FMA where the
+#: host has it (gcc does so from -O2 on): task5 0.42 -> 0.37 µs per state, same compile time,
+#: and still equal to CasADi's evaluation to ~4e-14 relative per state
+#: (tests/test_batched_kernels.py)
 FAST_FLAGS: tuple[str, ...] = (
     "-O1", "-ftree-vectorize", "-fexpensive-optimizations", "--param=vect-epilogues-nomask=0",
     "-march=native", "-fno-math-errno", "-fopenmp-simd", "-fPIC", "-shared",

@@ -38,13 +38,30 @@ _BINARY = {
     ca.OP_LT: "((double)({0}<{1}))", ca.OP_LE: "((double)({0}<={1}))",
     ca.OP_EQ: "((double)({0}=={1}))", ca.OP_NE: "((double)({0}!={1}))",
     ca.OP_AND: "((double)({0}&&{1}))", ca.OP_OR: "((double)({0}||{1}))",
-    ca.OP_IF_ELSE_ZERO: "({0}?{1}:0.)",
+    ca.OP_IF_ELSE_ZERO: "softpinn_if({0},{1})",
 }
 _OP_NAMES = {getattr(ca, a): a for a in dir(ca) if a.startswith("OP_")}
 
-#: vector variants in every libmvec since glibc 2.22 (x86_64)
+#: the most instructions for which :func:`kernel_source` writes a kernel without a scalar
+#: remainder loop and with the branchless ``softpinn_if`` (compile time, see there)
+LARGE = 25_000
+
+#: instructions that become calls to the math library (vector variants from libmvec where it
+#: has them): every vector register is caller-saved, so live values are stored around each call
+_CALLS = {ca.OP_SIN, ca.OP_COS, ca.OP_TAN, ca.OP_EXP, ca.OP_LOG, ca.OP_POW, ca.OP_CONSTPOW,
+          ca.OP_ASIN, ca.OP_ACOS, ca.OP_ATAN, ca.OP_ATAN2, ca.OP_SINH, ca.OP_COSH, ca.OP_TANH,
+          ca.OP_ASINH, ca.OP_ACOSH, ca.OP_ATANH, ca.OP_ERF, ca.OP_LOG1P, ca.OP_EXPM1,
+          ca.OP_FMOD, ca.OP_REMAINDER, ca.OP_HYPOT}
+
+#: vector variants in every libmvec since glibc 2.22 (x86_64); softpinn_if is CasADi's
+#: OP_IF_ELSE_ZERO (c ? x : 0, c NaN counting as true) without a branch, for kernels up to
+#: :data:`LARGE` instructions: gcc turns a ``?:`` into control flow, and its jump threading
+#: then duplicates code between an if_else's two complementary conditions (task5: 94 divisions,
+#: 50 square roots and 33 sines per state instead of 72, 28 and 22), while the bit mask
+#: compiles to one masked move
 HEADER = """\
 #include <math.h>
+#include <string.h>
 /* callers pass 64-byte aligned rows and a batch that is a multiple of WIDTH: every state then
    runs the same vector code (no peeled or scalar remainder), so a state's bits do not depend on
    its place in the batch */
@@ -60,6 +77,13 @@ double exp(double) __attribute__((simd("notinbranch")));
 double log(double) __attribute__((simd("notinbranch")));
 double pow(double, double) __attribute__((simd("notinbranch")));
 #endif
+static inline double softpinn_if(double c, double x) {
+  unsigned long long b;
+  memcpy(&b, &x, sizeof b);
+  b &= -(unsigned long long)(c != 0.);
+  memcpy(&x, &b, sizeof b);
+  return x;
+}
 """
 
 
@@ -96,75 +120,157 @@ def _literal(c: float) -> str:
     return float(c).hex()
 
 
-def shared_denominators(f: ca.Function) -> set[tuple[int, int]]:
-    """The divisors of ``f``'s SX instruction list that divide more than once: (work slot,
-    how many times the slot had been written when it divides), work slots being reused."""
-    writes: dict[int, int] = {}
-    uses: dict[tuple[int, int], int] = {}
+def _program(f: ca.Function) -> tuple[list[int], list[list[int]]]:
+    """``f``'s SX instructions as a single-assignment program: each instruction's operation and
+    the instructions whose results it reads (CasADi reuses work slots; here every result has
+    its own value)."""
+    ops, srcs, current = [], [], {}
     for k in range(f.n_instructions()):
         op, i, o = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-        if op == ca.OP_DIV:
-            key = (i[1], writes.get(i[1], 0))
-            uses[key] = uses.get(key, 0) + 1
+        if op in (ca.OP_CONST, ca.OP_INPUT):
+            src = []
+        elif op in _BINARY:
+            src = [current[i[0]], current[i[1]]]
+        else:  # unary, OP_OUTPUT, and the unknown ones kernel_source rejects
+            src = [current[i[0]]] if i and i[0] in current else []
+        ops.append(op)
+        srcs.append(src)
         if op != ca.OP_OUTPUT:
-            writes[o[0]] = writes.get(o[0], 0) + 1
-    return {key for key, count in uses.items() if count > 1}
+            current[o[0]] = k
+    return ops, srcs
+
+
+def shared_denominators(f: ca.Function) -> set[int]:
+    """The instructions of ``f``'s SX list whose result divides more than once."""
+    ops, srcs = _program(expand(f))
+    uses: dict[int, int] = {}
+    for op, src in zip(ops, srcs, strict=True):
+        if op == ca.OP_DIV:
+            uses[src[1]] = uses.get(src[1], 0) + 1
+    return {k for k, count in uses.items() if count > 1}
+
+
+def _order(ops: list[int], srcs: list[list[int]]) -> list[int]:
+    """The instructions in the order the kernel computes them, for fewer values stored and
+    reloaded (task5 holds ~370 values live on average in CasADi's order, against 32 vector
+    registers):
+
+    1. depth first from each output, of an instruction's operands the one that needs more
+       registers first (Sethi and Ullman's labels, counted as if the instruction graph were a
+       tree; ties in CasADi's order);
+    2. of that order, the math-library calls and everything they depend on first. A call
+       clobbers every vector register, so every live value costs a store and a load around
+       it; early in the program few values are live (task5: 278 of 10,013 instructions feed
+       its 44 sines and cosines).
+
+    Measured against CasADi's order on one core (AVX-512, gcc 12): step 2 ~5% faster per state
+    for task5 and ~10% for the planar arm of one segment, step 1 another ~2% (task5) to ~10%
+    (planar, two segments). The instructions are the same, so are the results."""
+    n = len(ops)
+    need = [1] * n
+    for k in range(n):
+        if ops[k] == ca.OP_CONST:
+            need[k] = 0
+        elif len(srcs[k]) == 2:
+            a, b = need[srcs[k][0]], need[srcs[k][1]]
+            need[k] = a + 1 if a == b else max(a, b)
+        elif srcs[k]:
+            need[k] = need[srcs[k][0]]
+    done, seq = [False] * n, []
+    for root in range(n):
+        if ops[root] != ca.OP_OUTPUT:
+            continue
+        stack = [(root, False)]
+        while stack:
+            k, expanded = stack.pop()
+            if done[k]:
+                continue
+            if expanded:
+                done[k] = True
+                seq.append(k)
+                continue
+            stack.append((k, True))
+            operands = sorted(set(srcs[k]), key=lambda j: (-need[j], j))
+            stack.extend((j, False) for j in reversed(operands) if not done[j])
+    seq += [k for k in range(n) if not done[k]]  # feeds no output
+    first = [False] * n
+    for k in range(n - 1, -1, -1):
+        first[k] = first[k] or ops[k] in _CALLS
+        if first[k]:
+            for j in srcs[k]:
+                first[j] = True
+    return [k for k in seq if first[k]] + [k for k in seq if not first[k]]
 
 
 def kernel_source(f: ca.Function, name: str) -> str:
     """C source of ``void name(long n, long ld, const double* const* arg, double* const* res)``
     evaluating the SX Function ``f`` at ``n`` states: input k's nonzero j of state i is
-    ``arg[k][j*ld + i]``, output k's nonzero j goes to ``res[k][j*ld + i]`` (no header).
+    ``arg[k][j*ld + i]``, output k's nonzero j goes to ``res[k][j*ld + i]`` (no header). ``n``
+    is a multiple of :data:`WIDTH` (callers pad the batch).
 
-    A divisor that divides several times is inverted once (``d = 1./w``) and its divisions
-    become products ``x*d``: a vector division costs several times a product, and CasADi's
+    Up to :data:`LARGE` instructions the loop runs to ``n`` rounded down to :data:`WIDTH`,
+    which tells the compiler so (no scalar remainder loop), and if_else is the branchless
+    ``softpinn_if``: half the code, and task5 compiles in ~3.5 s against ~6.5 s. Both leave
+    gcc's register allocator a few large basic blocks, on which its full algorithm takes time
+    growing faster than the instruction count (gcc 12, 2 cores at 2.6 GHz: 3 spatial segments,
+    18,700 instructions, 12 s; 4 segments, 29,000, 22 s; 6 segments, 58,000, 69 s). Above
+    :data:`LARGE` the kernel keeps the remainder loop and C's ``?:`` (as before 28 Nov):
+    their many blocks put gcc into its fast allocation (``max_reg_num * blocks >= 2^26``):
+    4 segments 6 s, 6 segments 11 s, and 10-15% slower code than the full allocation.
+
+    Every instruction's result is its own variable ``t<k>``, declared where it is computed,
+    in :func:`_order`'s order (gcc's own form is single assignment: reusing variables as
+    CasADi's work vector does, in the same order, compiles as fast and runs as fast). A divisor
+    that divides several times is inverted once (``d<k> = 1./t<k>``) and its divisions become
+    products ``x*d<k>``: a vector division costs several times a product, and CasADi's
     instruction lists divide by the same few values again and again (the planar PCC arm of one
-    segment: 205 divisions by 32 values per state; task5: 157 by 72). ``x*(1/w)`` is
-    within an ulp of ``x/w``; the kernels stay equal to CasADi's evaluation to ~1e-14 relative
-    per state (tests/test_batched_kernels.py)."""
+    segment: 205 divisions by 32 values per state; task5: 157 by 72). ``x*(1/w)`` is within an
+    ulp of ``x/w``; the kernels stay equal to CasADi's evaluation to ~1e-14 relative per state
+    (tests/test_batched_kernels.py)."""
     f = expand(f)
     for k in range(f.n_in()):
         if not f.sparsity_in(k).is_dense():
             raise KernelError(f"{f.name()}: input {f.name_in(k)} is sparse (kernels take dense "
                               "inputs)")
+    ops, srcs = _program(f)
+    for k, op in enumerate(ops):
+        if op not in _BINARY and op not in _UNARY and op not in (ca.OP_CONST, ca.OP_INPUT,
+                                                                   ca.OP_OUTPUT):
+            raise KernelError(f"{f.name()}: instruction {k} is CasADi's "
+                              f"{_OP_NAMES.get(op, op)}, which has no batched C kernel")
     shared = shared_denominators(f)
+    large = len(ops) > LARGE
+    bound = "n" if large else f"(n & -{WIDTH}L)"
     lines = [f"void {name}(long n, long ld, const double* const* arg, double* const* res) {{"]
     lines += [f"  const double* restrict a{k} = SOFTPINN_ALIGNED(arg[{k}]);"
               for k in range(f.n_in())]
     lines += [f"  double* restrict r{k} = SOFTPINN_ALIGNED(res[{k}]);" for k in range(f.n_out())]
-    lines += ["  #pragma omp simd", "  for (long i = 0; i < n; ++i) {"]
-    nw = f.sz_w()
-    if nw:
-        lines.append("    double " + ", ".join(f"w{j}" for j in range(nw)) + ";")
-    if shared:
-        lines.append("    double " + ", ".join(f"d{j}" for j in range(len(shared))) + ";")
-    inverse: dict[tuple[int, int], str] = {}
-    writes: dict[int, int] = {}
-    for k in range(f.n_instructions()):
-        op = f.instruction_id(k)
-        i, o = f.instruction_input(k), f.instruction_output(k)
+    lines += ["  #pragma omp simd", f"  for (long i = 0; i < {bound}; ++i) {{"]
+    inverted: set[int] = set()
+    for k in _order(ops, srcs):
+        op, v = ops[k], [f"t{j}" for j in srcs[k]]
         if op == ca.OP_CONST:
             rhs = _literal(f.instruction_constant(k))
         elif op == ca.OP_INPUT:
+            i = f.instruction_input(k)
             rhs = f"a{i[0]}[{i[1]}*ld+i]"
         elif op == ca.OP_OUTPUT:
-            lines.append(f"    r{o[0]}[{o[1]}*ld+i] = w{i[0]};")
+            o = f.instruction_output(k)
+            lines.append(f"    r{o[0]}[{o[1]}*ld+i] = {v[0]};")
             continue
-        elif op == ca.OP_DIV and (i[1], writes.get(i[1], 0)) in shared:
-            key = (i[1], writes.get(i[1], 0))
-            if key not in inverse:
-                inverse[key] = f"d{len(inverse)}"
-                lines.append(f"    {inverse[key]} = 1./w{i[1]};")
-            rhs = f"(w{i[0]}*{inverse[key]})"
+        elif op == ca.OP_DIV and srcs[k][1] in shared:
+            d = f"d{srcs[k][1]}"
+            if srcs[k][1] not in inverted:
+                inverted.add(srcs[k][1])
+                lines.append(f"    double {d} = 1./{v[1]};")
+            rhs = f"({v[0]}*{d})"
+        elif op == ca.OP_IF_ELSE_ZERO and large:
+            rhs = f"({v[0]}?{v[1]}:0.)"
         elif op in _BINARY:
-            rhs = _BINARY[op].format(f"w{i[0]}", f"w{i[1]}")
-        elif op in _UNARY:
-            rhs = _UNARY[op].format(f"w{i[0]}")
+            rhs = _BINARY[op].format(*v)
         else:
-            raise KernelError(f"{f.name()}: instruction {k} is CasADi's "
-                              f"{_OP_NAMES.get(op, op)}, which has no batched C kernel")
-        lines.append(f"    w{o[0]} = {rhs};")
-        writes[o[0]] = writes.get(o[0], 0) + 1
+            rhs = _UNARY[op].format(*v)
+        lines.append(f"    double t{k} = {rhs};")
     lines += ["  }", "}", ""]
     return "\n".join(lines)
 
@@ -174,18 +280,24 @@ def cuda_source(f: ca.Function, name: str) -> str:
     name(long n, long ld, const double* const* arg, double* const* res)``, one thread per
     state (i = blockIdx.x * blockDim.x + threadIdx.x), the same straight-line code and layout
     (input k's nonzero j of state i at ``arg[k][j*ld + i]``: consecutive threads read
-    consecutive addresses). For a GPU machine without CasADi: compile it there with NVRTC (e.g.
-    ``cupy.RawModule``; ``benchmarks/bench_gpu.py``)."""
+    consecutive addresses); ``softpinn_if`` is a plain ``?:`` there. For a GPU machine without
+    CasADi: compile it there with NVRTC (e.g. ``cupy.RawModule``; ``benchmarks/bench_gpu.py``)."""
     src = kernel_source(f, name)
     src = src.replace(f"void {name}(", f'extern "C" __global__ void {name}(', 1)
     src = src.replace("const double* restrict", "const double* __restrict__")
     src = src.replace("double* restrict", "double* __restrict__")
     src = src.replace("SOFTPINN_ALIGNED(", "(")
-    loop = "  #pragma omp simd\n  for (long i = 0; i < n; ++i) {"
-    if loop not in src:  # pragma: no cover - kernel_source's loop changed
-        raise KernelError(f"{f.name()}: no state loop to map onto threads")
-    return src.replace(loop, "  long i = (long)blockIdx.x * blockDim.x + threadIdx.x;\n"
-                             "  if (i < n) {", 1)
+    for bound in (f"(n & -{WIDTH}L)", "n"):
+        loop = f"  #pragma omp simd\n  for (long i = 0; i < {bound}; ++i) {{"
+        if loop in src:
+            return _CUDA_IF + src.replace(
+                loop, "  long i = (long)blockIdx.x * blockDim.x + threadIdx.x;\n  if (i < n) {", 1)
+    raise KernelError(f"{f.name()}: no state loop to map onto threads")  # pragma: no cover
+
+
+_CUDA_IF = ("#ifndef SOFTPINN_IF\n#define SOFTPINN_IF\n"
+            "static __device__ __forceinline__ double softpinn_if(double c, double x) {\n"
+            "  return c != 0. ? x : 0.;\n}\n#endif\n")
 
 
 #: RK4 over many trajectories, in blocks of BLOCK lanes (struct of arrays inside a block); the
