@@ -126,9 +126,10 @@ def recording_defaults(data: Dataset, pairs: int, kind: str, given) -> tuple[dic
     if "input_hold" not in given:
         chosen["input_hold"] = "linear"
         why.append("input hold linear (recorded inputs are samples of a continuous signal)")
-    if "test_with" not in given and "test_steps" not in given:
+    if "test_with" not in given:
         chosen["test_with"] = "rollout"
-        why.append("the best epoch picked by held-out rollouts of up to 5 s (predict's error; "
+        span = "--test-steps steps" if "test_steps" in given else "up to 5 s"
+        why.append(f"the best epoch picked by held-out rollouts of {span} (predict's error; "
                    "a one-step loss on noisy derivatives can improve while rollouts get worse)")
     if not chosen:
         return {}, None

@@ -124,6 +124,10 @@ def _held_out(data, ids, config, state, dtype):
         h, samples = config.rollout_steps, config.test_samples
         if config.test_with == "rollout":  # long windows: about ten per horizon by default
             h = config.test_steps
+            longest = max(int(data.indices(int(k)).size) for k in np.asarray(ids).tolist())
+            if h >= longest:
+                raise UserError(f"test_steps: {h} steps is longer than every held-out "
+                                f"trajectory (at most {longest - 1} steps); give fewer")
             if samples is None:
                 samples = sum(-(-10 * int(data.indices(int(k)).size) // h)
                               for k in np.asarray(ids).tolist())

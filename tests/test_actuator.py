@@ -233,6 +233,9 @@ def test_recording_defaults_leave_what_the_user_gave(tmp_path):
     assert "10,000" in why and "held-out rollouts of up to 5 s" in why
     kept, _ = recording_defaults(data, 6400, "lagrangian", {"test_with"})
     assert "test_with" not in kept
+    # --test-steps alone on an import: its rollouts pick, of the length given
+    steps, why = recording_defaults(data, 6400, "lagrangian", {"test_steps"})
+    assert steps["test_with"] == "rollout" and "rollouts of --test-steps steps" in why
     sim = _save(tmp_path / "s.npz", _record(None, trajectories=2, duration=2.0),
                 {"source": "simulate"})
     assert recording_defaults(sim, 6400, "lagrangian", set()) == ({}, None)

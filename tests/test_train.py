@@ -420,6 +420,10 @@ def test_rollout_scoring_picks_the_model_that_rolls_out_best(msd, tmp_path):
         blackbox_train_config(test_steps=10)
     with pytest.raises(UserError, match=r"^test_steps: expected an integer >= 1"):
         blackbox_train_config(test_with="rollout", test_steps=0)
+    with pytest.raises(UserError, match=r"^test_steps: 500 steps is longer than every "
+                                        r"held-out trajectory \(at most 80 steps\)"):
+        train(msd, blackbox_train_config(test_with="rollout", test_steps=500), tmp_path / "c")
+    assert not (tmp_path / "c" / "config.json").exists()
 
 
 def test_lbfgs_compiles_once(msd, tmp_path):
