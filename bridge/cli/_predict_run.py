@@ -1,6 +1,6 @@
 """``softpinn predict``: flags mapped onto :func:`softpinn.learn.predict`; the errors at each
 horizon, the baselines beside them (:mod:`bridge.analysis.baselines`: no motion and the
-least-squares linear models, fitted on the run's training trajectories and scored on the same
+linear models, fitted on the run's training trajectories and scored on the same
 trajectories as the model) with the one verdict line, and what the run's numbers need said
 beside them (:mod:`bridge.cli.runnotes`; its parser: :mod:`bridge.cli.predict`).
 

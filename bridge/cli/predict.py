@@ -1,5 +1,5 @@
 """``softpinn predict RUN DATA.npz``: one-step and rollout errors of a trained model at one or
-more horizons, beside the baselines (no motion, the least-squares linear models) and the one
+more horizons, beside the baselines (no motion, the linear models) and the one
 verdict line; run in :mod:`bridge.cli._predict_run`."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ def add_parser(subparsers):
             "initial state with the true inputs over --horizon seconds (mean squared error of q "
             "per trajectory, mean ± std over trajectories), at each --horizon given (one load, "
             "one rollout: the shorter horizons are the longest rollout's first seconds). "
-            "Beside them: no motion and the least-squares linear models (ARX of order 2, "
+            "Beside them: no motion and the linear models (ARX of order 2, "
             "linear second order) fitted on the run's training trajectories and scored on the "
             "same trajectories, and one verdict line. A run of 'train --model linear' is "
             "scored the same way, and the best of its models named."

@@ -19,7 +19,7 @@ def add_parser(subparsers):
             "additional labels, Hamiltonian networks from velocity data; docs/challenges.md); "
             "or a Cosserat-rod arm that is not PCC (PyElastica, the optional extra "
             "'cosserat'): its recordings imported as a real arm's, networks against no motion "
-            "and least-squares linear models (docs/cosserat.md). "
+            "and linear models (docs/cosserat.md). "
             "Finished stages are skipped when run again with the same settings."
         ),
     )

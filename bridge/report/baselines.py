@@ -1,5 +1,5 @@
 """The networks beside the baselines they must beat (issue 43): a table of rollout errors at
-each horizon, the networks first, then no motion and the least-squares linear models
+each horizon, the networks first, then no motion and the linear models
 (:mod:`bridge.analysis.baselines`), and one verdict line per network
 (:func:`bridge.analysis.baselines.verdict`): does it beat the best linear model and no motion,
 at each horizon? A user sees at once whether the physics pays."""

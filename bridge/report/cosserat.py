@@ -1,6 +1,6 @@
 """The report of ``softpinn reproduce cosserat`` (``OUT/report.md``, :mod:`bridge.cosserat`): one
 table of rollout errors on the held-out trajectories, the networks beside no motion and the
-least-squares linear models, clean and with sensor noise; one verdict line per network per
+linear models, clean and with sensor noise; one verdict line per network per
 variant (:func:`bridge.analysis.baselines.verdict`); and the settings that made them."""
 
 from __future__ import annotations

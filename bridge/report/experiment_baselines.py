@@ -1,5 +1,5 @@
 """The experiment report's section on the baselines (issue 43): its networks beside no motion and
-the least-squares linear models on the same imported bending coordinates, against the processed
+the linear models on the same imported bending coordinates, against the processed
 measurement, over the horizon without reset and over the whole test trajectories with resets
 (:func:`bridge.tasks.experiment_stages.stage_baselines`), at every sensor rate and
 preprocessing; one verdict line per network and preprocessing at the paper's rate."""

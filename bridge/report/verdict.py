@@ -1,6 +1,6 @@
 """The few sentences a task report opens with, generated from its numbers: which model predicts
 best and by how much against the black box and the paper, whether each network beats no motion
-and the least-squares linear models, how well the learned matrices match the true ones, what
+and the linear models, how well the learned matrices match the true ones, what
 diverged, and whether this is a quick run."""
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ def _against_baselines(models: dict, baselines: dict, on: str) -> str:
         parts.append(f"the {_who(k)} beats both at every horizon" if not lost else
                      f"the {_who(k)} loses to " + ", ".join(f"{name} at {h:.3g} s"
                                                            for h, name in lost))
-    return (f"Against no motion and the least-squares linear models{on}: "
+    return (f"Against no motion and the linear models{on}: "
             + "; ".join(parts) + ".")
 
 

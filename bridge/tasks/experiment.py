@@ -20,7 +20,7 @@ stand-in from the ``experiment`` preset (``docs/experiment.md``) and runs the pa
    processed measurement every :data:`RESET_EVERY` seconds (Figs. 15, 17), each against the
    processed measurement (what the paper could score) and against the true arm (what only a
    simulation knows); beside them, on each data set, the **baselines** every network must beat
-   (no motion and least-squares linear models on the same bending coordinates,
+   (no motion and linear models on the same bending coordinates,
    :mod:`bridge.analysis.baselines`), scored against the processed measurement the same ways;
 6. **bending**: the Lagrangian network's M, D, G, A in the observable bending block (dx, dy at
    dL = 0) against the true ones, through the transforms of :mod:`bridge.analysis`;

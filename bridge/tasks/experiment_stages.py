@@ -282,7 +282,7 @@ def baselines_settings(plan, imp_settings: dict) -> dict:
 
 
 def stage_baselines(plan, imported: dict) -> dict:
-    """No motion and the least-squares linear models (:mod:`bridge.analysis.baselines`) on the
+    """No motion and the linear models (:mod:`bridge.analysis.baselines`) on the
     imported bending coordinates (the networks' data: the observed coordinates only), fitted on
     the training trajectories and scored on the test ones against the processed measurement,
     as :func:`stage_predict` scores the networks: over the horizon without reset (``short``)

@@ -121,7 +121,7 @@ def baselines_settings(plan: Plan, files: dict, data_settings: dict) -> dict:
 
 
 def stage_baselines(plan: Plan, files: dict) -> dict:
-    """No motion and the least-squares linear models (:mod:`bridge.analysis.baselines`) fitted
+    """No motion and the linear models (:mod:`bridge.analysis.baselines`) fitted
     on the variant's physics-training trajectories and scored with predict's rollout error on
     its test trajectories at the predict stage's horizons (closed form: well under a second)."""
     f = files["physics"]
