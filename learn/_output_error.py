@@ -202,14 +202,11 @@ def fit_linear_rollout(trajectories, traj_ids=None, *, horizon: float | None = N
         segs = [{k: (v[::every] if k != "id" else v) for k, v in s.items()} for s in segs]
         H, dt = H // every, dt * every
     schedule = sorted({max(1, H // 5), H})
-    problem, theta = None, _Problem.theta(ls)
-    start_error, stages = None, []
+    problem, theta, stages = None, _Problem.theta(ls), []
     for h in schedule:
         x0, u, q = _windows(segs, h, max(1, H // WINDOWS_PER_HORIZON))
         problem = _Problem(ls, x0, u, q, dt, input_hold)
         before = problem.error(theta)
-        if start_error is None:
-            start_error = before
         found, iterations = _levenberg_marquardt(problem, theta, max_evaluations)
         after = problem.error(found)
         if after < before:  # never worse than where the stage started
