@@ -15,7 +15,8 @@ def add_parser(subparsers):
             "per trajectory, mean ± std over trajectories), at each --horizon given (one load, "
             "one rollout: the shorter horizons are the longest rollout's first seconds). "
             "Beside them: no motion and the linear models (ARX of order 2, "
-            "linear second order) fitted on the run's training trajectories and scored on the "
+            "linear second order by least squares and by its rollout error) fitted on the run's "
+            "training trajectories and scored on the "
             "same trajectories, and one verdict line. A run of 'train --model linear' is "
             "scored the same way, and the best of its models named."
         ),
