@@ -8,10 +8,10 @@ single-thread flags before jax is imported: one thread per XLA call):
   XLA's single-thread flags): CasADi's interpreter (``TrueModel.qdd`` batched), CasADi's
   compiled C with ``map`` (serial), the JAX translation (``jit(vmap)``); translate, trace and
   XLA-compile times; the batched C kernel of :mod:`softpinn.symbolic.codegen._kernel` (build
-time in a
-  fresh cache, per-state time), ``TrueModel.qdd`` on the batch (the kernel); the largest
-  differences. ``--segments 4`` adds a 4-segment arm (kernel build and speed; XLA with
-  ``--xla-segments``).
+  time in a fresh cache, per-state time), ``TrueModel.qdd`` on the batch (the kernel); the
+  largest differences, and the errors of the kernel and of CasADi's interpreter against the
+  Function evaluated in long double (:func:`accuracy`). ``--segments 4`` adds a 4-segment arm
+  (kernel build, speed and accuracy; XLA with ``--xla-segments``).
 * ``simulate``: 1,000 trajectories of 10 s of task5 with fixed-step RK4 on two cores: the
   batched C kernels (``bridge.exact.simulate`` backend ``"c"``, compiled into a fresh cache)
   and JAX (two halves run concurrently); the difference to cvodes on a few of them.
@@ -81,6 +81,31 @@ def _best(fn, repeat=5, label=None):
     return best
 
 
+def accuracy(fwd, args, kout) -> dict:
+    """Per-state relative errors (max |x - exact| / max |exact| over a state's q̈) of the kernel
+    and of CasADi's interpreter against the same Function in extended precision
+    (``symbolic.codegen._extended``): which of the two double-precision paths is closer to the
+    exact value, where they differ (ill-conditioned states)."""
+    import numpy as np
+
+    from softpinn.symbolic.codegen import _extended
+
+    if not _extended.available():
+        return {"extended": "unavailable (no compiler, or long double is a double)"}
+    exact = _extended.extended(fwd, *args)[0]
+    casadi = np.asarray(fwd.map(exact.shape[1])(*args))
+    scale = np.max(np.abs(exact), axis=0)
+    out = {"extended": f"long double, {np.finfo(np.longdouble).nmant + 1}-bit significand"}
+    for name, x in (("kernel", kout), ("casadi", casadi)):
+        err = (np.max(np.abs(x - exact), axis=0) / scale).astype(np.float64)
+        out[f"{name}_vs_extended_max_rel"] = float(err.max())
+        out[f"{name}_vs_extended_p99_rel"] = float(np.quantile(err, 0.99))
+    diff = np.max(np.abs(kout - casadi), axis=0) / np.max(np.abs(casadi), axis=0)
+    out["kernel_minus_casadi_max_rel"] = float(diff.max())
+    out["kernel_minus_casadi_above_1e-13"] = int(np.sum(diff > 1e-13))
+    return out
+
+
 def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool = True) -> dict:
     import casadi as ca
     import jax
@@ -140,6 +165,7 @@ def bench_model(spec, batch: int, workdir: Path, speed: bool = True, xla: bool =
         if got is not None:
             res["kernel_minus_jax_max_rel"] = float(np.max(np.abs(kout - got))
                                                     / np.max(np.abs(got)))
+        res.update(accuracy(fwd, (q, qd, u), kout))
     if not speed:
         return res
     cc = codegen.find_compiler()
