@@ -1,5 +1,5 @@
-"""The baseline kinds by name (:mod:`learn._baselines`, :mod:`learn._output_error`): fit one,
-or rebuild one from its ``to_dict()`` JSON."""
+"""The baseline kinds by name (:mod:`learn._baselines`, :mod:`learn._lagged_arx`,
+:mod:`learn._output_error`): fit one, or rebuild one from its ``to_dict()`` JSON."""
 
 from __future__ import annotations
 
@@ -7,11 +7,12 @@ from collections.abc import Mapping
 
 from softpinn.errors import UserError
 from softpinn.learn._baselines import ARX, FORMAT, LinearSecondOrder, NoMotion
+from softpinn.learn._lagged_arx import LaggedARX
 from softpinn.learn._output_error import LinearRolloutFit
 
 __all__ = ["BASELINE_KINDS", "baseline_from_dict", "fit_baseline"]
 
-_CLASSES = {c.kind: c for c in (ARX, LinearSecondOrder, LinearRolloutFit, NoMotion)}
+_CLASSES = {c.kind: c for c in (ARX, LaggedARX, LinearSecondOrder, LinearRolloutFit, NoMotion)}
 #: The baseline kinds, as ``to_dict()["kind"]`` names them.
 BASELINE_KINDS = tuple(sorted(_CLASSES))
 

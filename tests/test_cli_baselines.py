@@ -92,6 +92,7 @@ def test_predict_json_has_the_baselines_and_verdict(run, data, capsys):
     bl = one["baselines"]
     assert bl["train_trajectories"] == [0, 1, 2, 3] and bl["test_trajectories"] == [4]
     assert {s["name"] for s in bl["scores"]} == {"no motion", "ARX (order 2)",
+                                                 "lagged ARX",
                                                  "linear 2nd order",
                                                  "linear 2nd order, rollout fit"}
     assert one["verdict"].startswith("blackbox network: at 2 s ")
@@ -102,7 +103,7 @@ def test_predict_json_has_the_baselines_and_verdict(run, data, capsys):
 
 
 def test_train_linear_and_predict_end_to_end(linear, data, capsys):
-    for name in ("config.json", "metrics.json", "arx.json", "linear2.json",
+    for name in ("config.json", "metrics.json", "arx.json", "arx_lags.json", "linear2.json",
                  "linear2_rollout.json", "no_motion.json"):
         assert (linear / name).is_file(), name
     cfg = json.loads((linear / "config.json").read_text())
@@ -118,8 +119,10 @@ def test_train_linear_and_predict_end_to_end(linear, data, capsys):
     out = capsys.readouterr().out
     assert "rollout error over trajectory 4" in out
     assert "  1 s: no motion " in out and "  3 s: no motion " in out
-    # a linear system: one of the second-order fits is best
-    assert re.search(r"best: linear 2nd order(, rollout fit)? at every horizon", out), out
+    # a linear system: one of the second-order fits is best, or the lagged ARX, which holds
+    # its exact discretisation (two lags of q and of u)
+    assert re.search(r"best: (linear 2nd order(, rollout fit)?|lagged ARX) at every horizon",
+                     out), out
     doc = _json(capsys, ["predict", str(linear), str(data), "--horizon", "1", "--json",
                          "--trajectories", "all"])
     assert doc["best"][0].startswith("linear 2nd order") and doc["trajectories"] == [0, 1, 2,
@@ -131,9 +134,11 @@ def test_a_linear_run_from_before_the_rollout_fit_still_predicts(linear, data, c
     old = tmp_path / "old"
     shutil.copytree(linear, old)
     (old / "linear2_rollout.json").unlink()
+    (old / "arx_lags.json").unlink()
     cfg = json.loads((old / "config.json").read_text())
     for key in ("files", "names"):
         del cfg["model"][key]["linear2_rollout"]
+        del cfg["model"][key]["arx_lags"]
     (old / "config.json").write_text(json.dumps(cfg))
     doc = _json(capsys, ["predict", str(old), str(data), "--horizon", "1", "--json"])
     assert {s["kind"] for s in doc["baselines"]["scores"]} == {"no_motion", "arx", "linear2"}

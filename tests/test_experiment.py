@@ -106,8 +106,8 @@ def _baselines_at_the_networks_horizons(entry):
         c = bl[way]
         assert c["train_trajectories"] == entry["import"]["train"]
         assert c["test_trajectories"] == entry["import"]["test"] == [10, 11]
-        assert {s["kind"] for s in c["scores"]} == {"no_motion", "arx", "linear2",
-                                                    "linear2_rollout"}
+        assert {s["kind"] for s in c["scores"]} == {"no_motion", "arx", "arx_lags",
+                                                    "linear2", "linear2_rollout"}
         assert {s["horizon"] for s in c["scores"]} == {pr[key]["horizon_s"]}
         assert all(s["mean"] is None or s["mean"] >= 0 for s in c["scores"])
     assert bl["reset_every_s"] == pr["reset_error"]["reset_every_s"] == 3.0

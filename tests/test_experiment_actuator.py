@@ -140,7 +140,7 @@ def test_a_quick_run_with_an_actuator(lagged):
         pr = model["predict"]
         assert pr["prediction_error"]["count"] == 2
     assert {s["kind"] for s in entry["baselines"]["short"]["scores"]} == {
-        "no_motion", "arx", "linear2", "linear2_rollout"}
+        "no_motion", "arx", "arx_lags", "linear2", "linear2_rollout"}
     text = lagged.report.read_text(encoding="utf-8")
     assert ("**Actuator: lag 0.1 s after a dead time 0.06 s (known to the models)** "
             f"(`--actuator {ACT}`)") in text

@@ -138,7 +138,8 @@ def _baselines_beside_the_networks(result, text, saved):
         horizons = {pr["prediction_error"]["horizon_s"], pr["long_prediction_error"]["horizon_s"]}
         assert sorted(horizons) == bl["horizons"]
         assert {(s["kind"], s["horizon"]) for s in bl["scores"]} == {
-            (k, h) for k in ("no_motion", "arx", "linear2", "linear2_rollout") for h in horizons}
+            (k, h) for k in ("no_motion", "arx", "arx_lags", "linear2", "linear2_rollout")
+            for h in horizons}
         for s in bl["scores"]:
             assert s["mean"] is None or s["mean"] >= 0
         assert (result.out_dir / "baselines" / vname / "done.json").is_file()

@@ -1,6 +1,8 @@
 """The simplest honest alternatives beside every network (issue 43): "no motion" (hold the first
-state) and linear models (discrete ARX on q, order 2; the linear second-order model
-M q̈ + D q̇ + K q = B u + c by least squares on q̈, and the same fitted by its rollout error),
+state) and linear models (discrete ARX on q, order 2; the lagged ARX, with lags of q and u, its
+order chosen on a held-out training trajectory: the linear model with memory; the linear
+second-order model M q̈ + D q̇ + K q = B u + c by least squares on q̈, and the same fitted by its
+rollout error),
 fitted on the training trajectories (closed form; the rollout fit in a few seconds) and scored with
 ``softpinn predict``'s rollout error on the test trajectories (:mod:`softpinn.learn`'s
 baselines). A network is worth training where it beats them; :func:`verdict` says in one line
@@ -23,11 +25,13 @@ from softpinn.learn import Dataset, baseline_rollout_errors, fit_baseline
 BASELINES: tuple[tuple[str, str, dict], ...] = (
     ("no motion", "no_motion", {}),
     ("ARX (order 2)", "arx", {"order": 2}),
+    ("lagged ARX", "arx_lags", {}),
     ("linear 2nd order", "linear2", {}),
     ("linear 2nd order, rollout fit", "linear2_rollout", {}),
 )
 #: the kinds that count as "the best linear model"
-LINEAR = ("ARX (order 2)", "linear 2nd order", "linear 2nd order, rollout fit")
+LINEAR = ("ARX (order 2)", "lagged ARX", "linear 2nd order",
+          "linear 2nd order, rollout fit")
 
 
 def fit_options(kind: str, options: dict, input_hold: str) -> dict:

@@ -159,15 +159,16 @@ def _actuator_text(info: dict) -> str:
 
 
 #: the files of a linear baseline run, in the order written (config.json, the run's mark, last)
-LINEAR_FILES = ("no_motion.json", "arx.json", "linear2.json", "linear2_rollout.json",
-                "metrics.json", "config.json")
+LINEAR_FILES = ("no_motion.json", "arx.json", "arx_lags.json", "linear2.json",
+                "linear2_rollout.json", "metrics.json", "config.json")
 #: format of a linear baseline run's config.json
 LINEAR_FORMAT = "softpinn-linear-run"
 
 
 def train_linear(args) -> int:
-    """``train --model linear``: no motion, ARX (order 2) and the linear second-order model
-    fitted by least squares on the training trajectories (closed form) and by its rollout error
+    """``train --model linear``: no motion, ARX (order 2), ARX with lags of q and u (order
+    chosen on a held-out training trajectory) and the linear second-order model fitted by least
+    squares on the training trajectories (closed form) and by its rollout error
     (:mod:`softpinn.learn`'s ``fit_linear_rollout``, seconds), each written
     as its ``to_dict`` JSON, with config.json (the split) and metrics.json (the fit
     residuals): every file whole (:func:`softpinn.files.write_json`)."""
@@ -214,9 +215,14 @@ def train_linear(args) -> int:
         print(json.dumps({"run": str(out), **nulls(metrics)}, allow_nan=False))
         return 0
     arx, lin, oe = fits["arx"], fits["linear2"], fits["linear2_rollout"]
-    print(f"fitted ARX (order 2) and a linear second-order model on {len(train_ids)} "
-          f"trajector{'y' if len(train_ids) == 1 else 'ies'} in {seconds:.2g} s: ARX one-step "
-          f"rms {arx['one_step_rms']:.4e} (spectral radius {arx['spectral_radius']:.4g}), "
+    lags = models["arx_lags"]
+    trajs = f"{len(train_ids)} trajector{'y' if len(train_ids) == 1 else 'ies'}"
+    print(f"fitted ARX (order 2), a lagged ARX (lags of q and u) and a linear second-order "
+          f"model on {trajs} in {seconds:.2g} s: ARX one-step rms {arx['one_step_rms']:.4e} "
+          f"(spectral radius "
+          f"{arx['spectral_radius']:.4g}), lagged ARX of order {lags.order} fitted "
+          f"{'by least squares' if lags.info['fit'] == 'least squares' else 'by its rollouts'} "
+          f"(chosen by {lags.info['horizon']:g} s rollouts on {lags.info['order_chosen_on']}), "
           f"linear2 q̈ rms {lin['accel_rms']:.4e} (largest real eigenvalue "
           f"{lin['max_real_eigenvalue']:.3g}); fitted by its {oe['horizon']:.3g} s rollout "
           f"error: {oe['least_squares_rollout_error']:.4e} -> {oe['rollout_error']:.4e}")

@@ -17,7 +17,8 @@ with Savitzky-Golay cubics, as ``docs/experiment.md`` does):
    velocities, on the training trajectories, the best epoch chosen on a validation trajectory;
 5. **predict/<kind>**: ``softpinn predict``'s rollout error on the held-out test trajectories at
    each horizon (1 s, 5 s);
-6. **baselines**: no motion, ARX (order 2) and the linear second-order model, fitted on the
+6. **baselines**: no motion, the ARX models (order 2; lags of q and u, order chosen) and the
+   linear second-order model (least squares; rollout fit), fitted on the
    same trajectories under the same actuator and scored the same way
    (:mod:`bridge.analysis.baselines`).
 

@@ -193,7 +193,8 @@ def stage_predict(plan: CosseratPlan, imported: dict, trained: dict,
 
 
 def stage_baselines(plan: CosseratPlan, imported: dict, actuator: dict) -> dict[str, Any]:
-    """No motion, ARX (order 2) and the linear second-order model, fitted on the training and
+    """No motion, the ARX models (order 2; lags of q and u) and the linear second-order model
+    (least squares; rollout fit), fitted on the training and
     validation trajectories (all the networks saw) under the networks' actuator and scored like
     :func:`stage_predict` (:func:`bridge.analysis.baselines.compare_baselines`)."""
     data = load_dataset(imported["path"])
