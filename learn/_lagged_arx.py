@@ -204,7 +204,7 @@ def _choose(scores: dict[tuple[int, str], float], judge) -> tuple[int, str]:
     finite = {k: e for k, e in scores.items() if math.isfinite(e)}
     if not finite:
         return min(scores)
-    floor = 1e-24 * float(np.mean([np.mean(s["q"] ** 2) for s in judge]))
+    floor = 1e-20 * float(np.mean([np.mean(s["q"] ** 2) for s in judge]))
     low = min(finite.values())
     return min((k for k, e in finite.items() if e <= PARSIMONY * low + floor),
                key=lambda k: (k[0], k[1] != METHODS[0]))
