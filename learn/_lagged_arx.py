@@ -110,20 +110,28 @@ class LaggedARX:
 
 
 def _simulate(model: LaggedARX, hist: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
-    p, T, n = model.order, u.shape[0], model.n
+    """A rollout from a history of q (oldest first; extrapolated back along q̇ to p samples)
+    with the inputs before u[0] held at u[0]."""
+    p = model.order
     back = [hist[0] - j * model.dt * qd for j in range(p - hist.shape[0], 0, -1)]
-    past = np.array([*back, *hist[-p:]])[::-1]  # newest first, (p, n)
-    upast = np.repeat(u[:1], p, axis=0)  # newest first
-    A = np.concatenate(list(model.A), axis=1)  # (n, p n)
+    past = np.array([*back, *hist[-p:]])
+    return _recur(model, past, np.repeat(u[:1], p, axis=0), u)
+
+
+def _recur(model: LaggedARX, past_q: np.ndarray, past_u: np.ndarray, u: np.ndarray):
+    """q (T, n): the last p samples of q and of u (oldest first; the last ones at the first
+    sample, u[0] among them), then the recurrence under u[1:]."""
+    A = np.concatenate(list(model.A), axis=1)  # (n, p n), newest lag first
     B = np.concatenate(list(model.B), axis=1)  # (n, p m)
-    out = np.empty((T, n))
+    past, upast = past_q[::-1].copy(), past_u[::-1].copy()  # newest first
+    out = np.empty((u.shape[0], model.n))
     out[0] = past[0]
     with np.errstate(over="ignore", invalid="ignore"):
-        for k in range(T - 1):
-            upast = np.vstack([u[k:k + 1], upast[:-1]])
+        for k in range(u.shape[0] - 1):
             nxt = A @ past.reshape(-1) + B @ upast.reshape(-1) + model.c
             out[k + 1] = nxt
             past = np.vstack([nxt[None], past[:-1]])
+            upast = np.vstack([u[k + 1:k + 2], upast[:-1]])
     return out
 
 
@@ -174,28 +182,12 @@ def window_score(model: LaggedARX, segs, horizon: float = HORIZON) -> float:
         for a in np.unique(np.linspace(p - 1, T - H, WINDOWS).astype(int)):
             past = q[a - p + 1:a + 1]
             upast = u[a - p + 1:a + 1]
-            pred = _simulate_with_inputs(model, past, upast, u[a:a + H])
+            pred = _recur(model, past, upast, u[a:a + H])
             d = pred[1:] - q[a + 1:a + H]
             with np.errstate(over="ignore", invalid="ignore"):
                 errs.append(float(np.mean(np.sum(d * d, axis=1))))
     err = float(np.mean(errs)) if errs else math.inf
     return err if math.isfinite(err) else math.inf
-
-
-def _simulate_with_inputs(model, past_q, past_u, u):
-    """A rollout from a measured past of p samples of q and u (oldest first)."""
-    A = np.concatenate(list(model.A), axis=1)
-    B = np.concatenate(list(model.B), axis=1)
-    past, upast = past_q[::-1].copy(), past_u[::-1].copy()
-    out = np.empty((u.shape[0], model.n))
-    out[0] = past[0]
-    with np.errstate(over="ignore", invalid="ignore"):
-        for k in range(u.shape[0] - 1):
-            nxt = A @ past.reshape(-1) + B @ upast.reshape(-1) + model.c
-            out[k + 1] = nxt
-            past = np.vstack([nxt[None], past[:-1]])
-            upast = np.vstack([u[k + 1:k + 2], upast[:-1]])
-    return out
 
 
 def _choose(scores: dict[tuple[int, str], float], judge) -> tuple[int, str]:
