@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from softpinn.learn._output_error import _levenberg_marquardt
+from softpinn.learn._output_error import WindowResiduals, _levenberg_marquardt
 
 __all__ = ["MAX_PARAMETERS", "horizon_steps", "padded", "parameters", "refine"]
 
@@ -67,7 +67,7 @@ def padded(model, p: int):
                        dict(model.info))
 
 
-class _Problem:
+class _Problem(WindowResiduals):
     """Residuals of the window rollouts of a lagged ARX of order p for parameter vectors θ."""
 
     def __init__(self, segs, p: int, H: int, stride: int):
@@ -118,14 +118,6 @@ class _Problem:
                 buf[:, :, p + k] = buf[:, :, k:k + p].reshape(P, W, p * n) @ At + drive[:, :, k]
         return buf[:, :, p:]
 
-    def _flat(self, pred: np.ndarray) -> np.ndarray:
-        r = (pred - self.q).reshape(pred.shape[0], -1) * self.scale
-        return np.clip(np.nan_to_num(r, nan=self.cap, posinf=self.cap, neginf=-self.cap),
-                       -self.cap, self.cap)
-
-    def residuals(self, theta: np.ndarray) -> np.ndarray:
-        return self._flat(self.predicted(theta[None]))[0]
-
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """∂ residuals / ∂θ, exact: the sensitivities of a linear recursion obey the same
         recursion (the same A for every parameter: one matrix product a step for all of them)
@@ -153,13 +145,6 @@ class _Problem:
                 S[:, :, p + k] = new
         jac = S[:, :, p:].reshape(J, -1).T * self.scale
         return np.nan_to_num(jac, nan=0.0, posinf=0.0, neginf=0.0)
-
-    def error(self, theta: np.ndarray) -> float:
-        """The windows' mean over samples of ‖q - q̂‖², inf if not finite."""
-        d = self.predicted(theta[None])[0] - self.q
-        with np.errstate(over="ignore", invalid="ignore"):
-            e = float(np.mean(np.sum(d * d, axis=-1)))
-        return e if math.isfinite(e) else math.inf
 
 
 def horizon_steps(segs, p: int, wanted: int) -> int:

@@ -70,7 +70,37 @@ def _windows(segs, H: int, stride: int):
     return np.asarray(x0)[keep], np.asarray(u)[keep], np.asarray(q)[keep]
 
 
-class _Problem:
+class WindowResiduals:
+    """The residuals of window rollouts q̂ against the measured q (W, H, n): a subclass sets
+    ``q``, ``scale`` (1/√(W H): the residuals' sum of squares is the mean over samples) and
+    ``cap`` (what a rollout that left every sensible range counts as: Levenberg-Marquardt
+    needs finite residuals, and a step into instability is then simply a bad step), and
+    defines ``predicted(thetas)`` (P, W, H, n) and ``jacobian(theta)``."""
+
+    q: np.ndarray
+    scale: float
+    cap: float
+
+    def predicted(self, thetas: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _flat(self, pred: np.ndarray) -> np.ndarray:
+        r = (pred - self.q).reshape(pred.shape[0], -1) * self.scale
+        return np.clip(np.nan_to_num(r, nan=self.cap, posinf=self.cap, neginf=-self.cap),
+                       -self.cap, self.cap)
+
+    def residuals(self, theta: np.ndarray) -> np.ndarray:
+        return self._flat(self.predicted(theta[None]))[0]
+
+    def error(self, theta: np.ndarray) -> float:
+        """The windows' mean over samples of ‖q - q̂‖² (predict's metric), inf if not finite."""
+        d = self.predicted(theta[None])[0] - self.q
+        with np.errstate(over="ignore", invalid="ignore"):
+            e = float(np.mean(np.sum(d * d, axis=-1)))
+        return e if math.isfinite(e) else math.inf
+
+
+class _Problem(WindowResiduals):
     """Residuals of the window rollouts for a parameter vector θ = (A_q, A_v, B_u, c)."""
 
     def __init__(self, base: LinearSecondOrder, x0, u, q, dt: float, hold: str):
@@ -117,14 +147,6 @@ class _Problem:
                 out[:, :, k] = x[..., :self.n]
         return out
 
-    def _flat(self, pred: np.ndarray) -> np.ndarray:
-        r = (pred - self.q).reshape(pred.shape[0], -1) * self.scale
-        return np.clip(np.nan_to_num(r, nan=self.cap, posinf=self.cap, neginf=-self.cap),
-                       -self.cap, self.cap)
-
-    def residuals(self, theta: np.ndarray) -> np.ndarray:
-        return self._flat(self.predicted(theta[None]))[0]
-
     def jacobian(self, theta: np.ndarray) -> np.ndarray:
         """Forward differences of :meth:`residuals`, every column's rollout in one batch."""
         h = np.sqrt(np.finfo(float).eps) * np.maximum(1.0, np.abs(theta))
@@ -135,12 +157,6 @@ class _Problem:
         cols = [self._flat(self.predicted(thetas[a:a + per])) for a in range(0, len(h), per)]
         return ((np.vstack(cols) - r0) / h[:, None]).T
 
-    def error(self, theta: np.ndarray) -> float:
-        """The windows' mean over samples of ‖q - q̂‖² (predict's metric), inf if not finite."""
-        d = self.predicted(theta[None])[0] - self.q
-        with np.errstate(over="ignore", invalid="ignore"):
-            e = float(np.mean(np.sum(d * d, axis=-1)))
-        return e if math.isfinite(e) else math.inf
 
 
 def _levenberg_marquardt(problem: _Problem, theta: np.ndarray, iterations: int):
