@@ -111,10 +111,12 @@ def rollout_errors(baseline, trajs, horizon_s: float, *, traj_ids=None,
         starts = [0, *np.flatnonzero(mask).tolist(), t.size - 1]
         q_pred = np.empty_like(q)
         order = getattr(baseline, "order", 1)
+        lags = getattr(baseline, "input_lags", 0)  # a model that takes the inputs' past
         for a, b in zip(starts[:-1], starts[1:], strict=True):
+            past = {"u_past": u[max(0, a - lags + 1):a]} if lags else {}
             q_pred[a:b + 1] = baseline.rollout(q[max(0, a - order + 1):a + 1], qd[a],
                                                u[a:b + 1], np.diff(t[a:b + 1]),
-                                               input_hold=input_hold)
+                                               input_hold=input_hold, **past)
         d = q_pred[1:] - q[1:]
         with np.errstate(over="ignore", invalid="ignore"):
             err = float(np.mean(np.sum(d * d, axis=1)))

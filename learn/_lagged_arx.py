@@ -12,11 +12,13 @@ twice on the training trajectories but the last: by least squares on one-step pa
 the better of that fit and the previous order's rollout fit; on noisy angles least squares fits
 the noise, unstably at high orders). The fit and order chosen are those whose rollouts of up to
 :data:`HORIZON` seconds are best on the last training trajectory, held out (on the training
-ones where there is only one; the lowest order within 5 % of the best, least squares before the
-rollout fit; unstable fits, spectral radius of the companion matrix above 1, refused); that fit
-is then repeated on every training trajectory. Where the rollout starts
-without a past (a trajectory's first sample), earlier q are extrapolated along q̇0 and earlier
-inputs held at u0, as an arm at rest would have them.
+ones where there is only one), scored as predict scores them (:func:`window_score`: half from
+the trajectory's start, half from windows with a measured past); the lowest order within 5 % of
+the best, least squares before the rollout fit; unstable fits (spectral radius of the companion
+matrix above 1) refused. That fit is then repeated on every training trajectory. Where a rollout
+starts without a past (a trajectory's first sample), earlier q are extrapolated along q̇0 and
+earlier inputs held at u0, as an arm at rest would have them; predict's resets pass the
+measured past of q and u.
 """
 
 from __future__ import annotations
@@ -79,18 +81,27 @@ class LaggedARX:
     def fit(cls, data, traj_ids=None, *, ridge: float = RIDGE) -> LaggedARX:
         return fit_lagged_arx(data, traj_ids, ridge=ridge)
 
-    def rollout(self, q0_or_history, qd0, u_seq, dt, *, input_hold: str = "constant"):
+    #: rollouts take the inputs before their start (``u_past``; predict's resets pass them)
+    input_lags = property(lambda self: self.order)
+
+    def rollout(self, q0_or_history, qd0, u_seq, dt, *, input_hold: str = "constant",
+                u_past=None):
         """q (T, n) from q0 (n,) or the last r <= p samples (r, n), oldest first, under inputs
-        u_seq (T, m): earlier q extrapolated back along q̇0 (None: at rest), earlier u held at
-        u_seq[0]. Discrete: ``input_hold`` is accepted for a common interface and unused;
-        ``dt`` must be the step it was fitted at."""
+        u_seq (T, m) after the inputs ``u_past`` (the samples before u_seq[0], oldest first;
+        None: none): earlier q extrapolated back along q̇0 (None: at rest), earlier u held at
+        the first one known. Discrete: ``input_hold`` is accepted for a common interface and
+        unused; ``dt`` must be the step it was fitted at."""
         _check_hold(input_hold)
         hist, qd, u = _start(self.kind, self.n, self.m, q0_or_history, qd0, u_seq)
         h = _steps(dt, u.shape[0])
         if h.size and np.max(np.abs(h - self.dt)) > STEP_RTOL * self.dt:
             raise UserError(f"{self.kind} rollout: the model was fitted at step {self.dt:.6g} "
                             f"s, asked for steps {h.min():.6g}..{h.max():.6g} s")
-        return _simulate(self, hist, qd, u)
+        past = np.zeros((0, self.m)) if u_past is None else np.asarray(u_past, np.float64)
+        if past.ndim != 2 or past.shape[1] != self.m:
+            raise UserError(f"{self.kind} rollout: u_past must have shape (r, {self.m}), got "
+                            f"{past.shape}")
+        return _simulate(self, hist, qd, u, past)
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "format": FORMAT, "n": self.n, "m": self.m,
@@ -109,13 +120,17 @@ class LaggedARX:
                    g("q_low", (n,)), g("q_high", (n,)), dict(d.get("info", {})))
 
 
-def _simulate(model: LaggedARX, hist: np.ndarray, qd: np.ndarray, u: np.ndarray) -> np.ndarray:
+def _simulate(model: LaggedARX, hist: np.ndarray, qd: np.ndarray, u: np.ndarray,
+              u_past: np.ndarray | None = None) -> np.ndarray:
     """A rollout from a history of q (oldest first; extrapolated back along q̇ to p samples)
-    with the inputs before u[0] held at u[0]."""
+    and of u before u[0] (oldest first; held back at the first one known)."""
     p = model.order
     back = [hist[0] - j * model.dt * qd for j in range(p - hist.shape[0], 0, -1)]
     past = np.array([*back, *hist[-p:]])
-    return _recur(model, past, np.repeat(u[:1], p, axis=0), u)
+    known = np.concatenate([u_past[-(p - 1):] if u_past is not None and p > 1 else
+                            np.zeros((0, model.m)), u[:1]])
+    upast = np.concatenate([np.repeat(known[:1], p - known.shape[0], axis=0), known])
+    return _recur(model, past, upast, u)
 
 
 def _recur(model: LaggedARX, past_q: np.ndarray, past_u: np.ndarray, u: np.ndarray):
@@ -169,24 +184,30 @@ def _fit_order(segs, p: int, dt: float, ridge: float) -> LaggedARX | None:
     return LaggedARX(A, B, b, dt, *_range(segs), info)
 
 
+def _error(pred: np.ndarray, q: np.ndarray) -> float:
+    d = pred[1:] - q[1:]
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(np.mean(np.sum(d * d, axis=1)))
+
+
 def window_score(model: LaggedARX, segs, horizon: float = HORIZON) -> float:
-    """Mean over windows of ‖q - q̂‖² (predict's metric): :data:`WINDOWS` windows of up to
-    ``horizon`` seconds per trajectory, each from its measured past (q and u)."""
-    p, errs = model.order, []
+    """The rollout error predict reports, on other trajectories: half of it is the mean over
+    the trajectories of the first ``horizon`` seconds from their start (the past extrapolated
+    along q̇0, the inputs held: predict without reset, where a high order's guessed past costs
+    most), half the mean over :data:`WINDOWS` windows per trajectory from their measured past
+    (predict with resets). inf where a rollout is not finite."""
+    p, starts, windows = model.order, [], []
     for s in segs:
-        q, u = s["q"], s["u"]
+        q, qd, u = s["q"], s["qd"], s["u"]
         T = q.shape[0]
-        if T - (p - 1) < 2:
+        H = max(2, min(T, int(round(horizon / model.dt)) + 1))
+        starts.append(_error(_simulate(model, q[:1], qd[0], u[:H]), q[:H]))
+        if T - (p - 1) < H:
             continue
-        H = max(2, min(T - (p - 1), int(round(horizon / model.dt)) + 1))
         for a in np.unique(np.linspace(p - 1, T - H, WINDOWS).astype(int)):
-            past = q[a - p + 1:a + 1]
-            upast = u[a - p + 1:a + 1]
-            pred = _recur(model, past, upast, u[a:a + H])
-            d = pred[1:] - q[a + 1:a + H]
-            with np.errstate(over="ignore", invalid="ignore"):
-                errs.append(float(np.mean(np.sum(d * d, axis=1))))
-    err = float(np.mean(errs)) if errs else math.inf
+            pred = _recur(model, q[a - p + 1:a + 1], u[a - p + 1:a + 1], u[a:a + H])
+            windows.append(_error(pred, q[a:a + H]))
+    err = 0.5 * (float(np.mean(starts)) + float(np.mean(windows if windows else starts)))
     return err if math.isfinite(err) else math.inf
 
 

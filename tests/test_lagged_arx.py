@@ -161,3 +161,21 @@ def test_noisy_angles_are_fitted_by_their_rollouts():
     err = {k: rollout_errors(f, test, 5.0).rollout_error_mean for k, f in
            (("rollout", fit), ("least squares", ls))}
     assert err["rollout"] < 0.8 * err["least squares"], err  # 0.028 against 0.044
+
+
+def test_resets_pass_the_inputs_past():
+    """predict's resets give the lagged ARX the measured past of q and of u: from there its
+    rollout is the recurrence on the measured samples (exact on data it generated)."""
+    true = _system(seed=6)
+    data = _trajectories(true, trajs=1, steps=120, seed=7)
+    err = rollout_errors(true, data, 5.0, reset_every=1.0)
+    assert err.rollout_error_mean < 1e-24  # every reset from the exact past
+    s = data[0]
+    a = 40  # a reset sample: its past of q and of u reproduces the sample after it
+    got = true.rollout(s["q"][a - 2:a + 1], s["qd"][a], s["u"][a:a + 10], DT,
+                       u_past=s["u"][a - 2:a])
+    np.testing.assert_allclose(got, s["q"][a:a + 10], rtol=1e-12, atol=1e-14)
+    held = true.rollout(s["q"][a - 2:a + 1], s["qd"][a], s["u"][a:a + 10], DT)
+    assert np.max(np.abs(held - s["q"][a:a + 10])) > 1e-6  # without it, the inputs are held
+    with pytest.raises(UserError, match="u_past must have shape"):
+        true.rollout(s["q"][a], None, s["u"][a:a + 3], DT, u_past=np.zeros((2, 5)))
