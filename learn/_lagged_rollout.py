@@ -7,9 +7,9 @@ second-order model, this fits the same matrices to what ``predict`` scores: the 
 windows of the training trajectories, each simulated from its measured past (p samples of q and
 u) under its measured inputs over up to :data:`MAX_STEPS` steps, of the mean over the window's
 samples of ‖q - q̂‖²; Levenberg-Marquardt (:func:`learn._output_error._levenberg_marquardt`)
-with forward-difference Jacobians, every column's rollout in one batch, over a schedule of
-horizons from a fifth of the horizon to all of it. Only for models of at most
-:data:`MAX_PARAMETERS` coefficients (the cost grows with their number squared).
+with the exact Jacobian (:meth:`_Problem.jacobian`), over a schedule of horizons from a fifth
+of the horizon to all of it. Only for models of at most :data:`MAX_PARAMETERS` coefficients
+(the Jacobian's memory and the normal equations grow with their number).
 """
 
 from __future__ import annotations
