@@ -3,7 +3,7 @@ state) and linear models (discrete ARX on q, order 2; the lagged ARX, with lags 
 order chosen on a held-out training trajectory: the linear model with memory; the linear
 second-order model M q̈ + D q̇ + K q = B u + c by least squares on q̈, and the same fitted by its
 rollout error),
-fitted on the training trajectories (closed form; the rollout fit in a few seconds) and scored with
+fitted on the training trajectories (closed form; the rollout fits in seconds) and scored with
 ``softpinn predict``'s rollout error on the test trajectories (:mod:`softpinn.learn`'s
 baselines). A network is worth training where it beats them; :func:`verdict` says in one line
 whether it does, at each horizon.
