@@ -103,6 +103,11 @@ class LaggedARX:
                             f"{past.shape}")
         return _simulate(self, hist, qd, u, past)
 
+    def describe(self) -> str:
+        """What the fit chose, e.g. "order 6, least squares" (the report's row label)."""
+        how = {"rollout": "rollout fit"}.get(self.info.get("fit"), self.info.get("fit"))
+        return f"order {self.order}" + (f", {how}" if how else "")
+
     def to_dict(self) -> dict:
         return {"kind": self.kind, "format": FORMAT, "n": self.n, "m": self.m,
                 "order": self.order, "dt": self.dt, "A": self.A.tolist(), "B": self.B.tolist(),

@@ -76,6 +76,8 @@ def test_quick_run_writes_the_table_and_the_verdicts(quick_run):
             assert " at 1 s " in line and (" beats " in line or " LOSES " in line)
     assert "seed 0" in report and "plan.json" in report
     assert report.count("actuator (every network and baseline): ") == 2
+    assert len(re.findall(r"  - baselines: lagged ARX order \d+, (least squares|rollout fit)",
+                          report)) == 2  # what its fit chose, per variant
 
 
 @pytest.mark.slow

@@ -179,3 +179,27 @@ def test_resets_pass_the_inputs_past():
     assert np.max(np.abs(held - s["q"][a:a + 10])) > 1e-6  # without it, the inputs are held
     with pytest.raises(UserError, match="u_past must have shape"):
         true.rollout(s["q"][a], None, s["u"][a:a + 3], DT, u_past=np.zeros((2, 5)))
+
+
+def test_reports_and_predict_say_what_the_fit_chose():
+    """The comparison carries the lagged ARX's order and fit (stored as JSON, older JSON without
+    it still loads); the table's row and predict's line show it, the name stays."""
+    import json
+
+    from softpinn.bridge.analysis.baselines import BaselineComparison, compare_baselines
+    from softpinn.bridge.report.baselines import baseline_rows
+
+    data = [dict(s, qdd=np.gradient(s["qd"], DT, axis=0))
+            for s in _trajectories(_system(), trajs=4, steps=200)]
+    c = compare_baselines(data, [0, 1, 2], [3], [2.0])
+    lag = next(s for s in c.scores if s.kind == "arx_lags")
+    # an exact fit: least squares keeps its ridge (1e-9), the rollout fit polishes it away
+    assert lag.name == "lagged ARX" and lag.detail == "order 3, rollout fit"
+    assert lag.label == "lagged ARX (order 3, rollout fit)"
+    stored = json.loads(json.dumps(c.to_json()))
+    assert BaselineComparison.from_json(stored) == c
+    for s in stored["scores"]:
+        s.pop("detail", None)
+    assert BaselineComparison.from_json(stored).scores[0].detail == ""
+    labels = [row[0] for row in baseline_rows({}, c)]
+    assert "lagged ARX (order 3, rollout fit)" in labels and "ARX (order 2)" in labels

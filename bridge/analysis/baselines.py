@@ -51,12 +51,19 @@ class BaselineScore:
     mean: float  # inf where a rollout is not finite
     std: float
     out_of_range: tuple[int, ...]  # test trajectories whose rollout left the training range
+    detail: str = ""  # what the fit chose (the lagged ARX: "order 6, least squares")
+
+    @property
+    def label(self) -> str:
+        """The name, with what the fit chose where it says (tables and predict's lines)."""
+        return f"{self.name} ({self.detail})" if self.detail else self.name
 
     def to_json(self) -> dict:
         finite = lambda x: x if math.isfinite(x) else None  # strict JSON: inf -> null
-        return {"name": self.name, "kind": self.kind, "horizon": self.horizon,
-                "mean": finite(self.mean), "std": finite(self.std),
-                "out_of_range": list(self.out_of_range)}
+        out = {"name": self.name, "kind": self.kind, "horizon": self.horizon,
+               "mean": finite(self.mean), "std": finite(self.std),
+               "out_of_range": list(self.out_of_range)}
+        return {**out, "detail": self.detail} if self.detail else out
 
 
 @dataclass(frozen=True)
@@ -98,7 +105,8 @@ class BaselineComparison:
         number = lambda x: math.inf if x is None else float(x)
         scores = tuple(BaselineScore(str(s["name"]), str(s["kind"]), float(s["horizon"]),
                                      number(s["mean"]), number(s["std"]),
-                                     tuple(int(i) for i in s["out_of_range"]))
+                                     tuple(int(i) for i in s["out_of_range"]),
+                                     str(s.get("detail", "")))
                        for s in d["scores"])
         return cls(tuple(int(i) for i in d["train_trajectories"]),
                    tuple(int(i) for i in d["test_trajectories"]), scores)
@@ -111,16 +119,30 @@ def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],
     score it on the ``test`` trajectories at each horizon (seconds). Closed form: seconds."""
     if not horizons:
         raise UserError("horizon: expected at least one horizon")
+    models = [(name, fit_baseline(kind, data, [int(i) for i in train],
+                                  **fit_options(kind, options, input_hold)))
+              for name, kind, options in BASELINES]
+    return score_models(models, data, train, test, horizons, reset_every=reset_every,
+                        input_hold=input_hold)
+
+
+def score_models(models, data, train: Sequence[int], test: Sequence[int],
+                 horizons: Sequence[float], *, reset_every: float | None = None,
+                 input_hold: str = "constant") -> BaselineComparison:
+    """Fitted baselines ``models`` ((name, model) pairs, fitted on ``train``) scored at each
+    horizon on the ``test`` trajectories of ``data`` with predict's rollout error; a model
+    that says what its fit chose (``describe()``) has it in its scores' ``detail``."""
     train, test = tuple(int(i) for i in train), tuple(int(i) for i in test)
     scores = []
-    for name, kind, options in BASELINES:
-        model = fit_baseline(kind, data, list(train), **fit_options(kind, options, input_hold))
+    for name, model in models:
+        detail = model.describe() if hasattr(model, "describe") else ""
         for h in horizons:
             res = baseline_rollout_errors(model, data, float(h), traj_ids=list(test),
                                           reset_every=reset_every, input_hold=input_hold)
-            scores.append(BaselineScore(name, kind, float(h), float(res.rollout_error_mean),
+            scores.append(BaselineScore(name, model.kind, float(h),
+                                        float(res.rollout_error_mean),
                                         float(res.rollout_error_std),
-                                        tuple(int(i) for i in res.out_of_range)))
+                                        tuple(int(i) for i in res.out_of_range), detail))
     return BaselineComparison(train, test, tuple(scores))
 
 

@@ -30,6 +30,7 @@ from softpinn.bridge.analysis.baselines import (
     BaselineScore,
     compare_baselines,
     fit_options,
+    score_models,
     verdict,
 )
 from softpinn.bridge.cli._jax import enable_x64
@@ -37,7 +38,6 @@ from softpinn.bridge.cli.runnotes import member_notes, note_interrupted, ran_awa
 from softpinn.errors import UserError
 from softpinn.learn import (
     baseline_from_dict,
-    baseline_rollout_errors,
     fit_baseline,
     load_dataset,
     predict,
@@ -173,18 +173,10 @@ def first_seconds(res, horizon: float):
 def score_baselines(models, data, train, test, horizons, reset_every=None,
                     input_hold: str = "constant") -> BaselineComparison:
     """Fitted baselines ``models`` ((name, model) pairs) scored at each horizon on the ``test``
-    trajectories of ``data`` with predict's rollout error (as :func:`compare_baselines`
-    scores those it fits)."""
-    scores = []
-    for name, model in models:
-        for h in horizons:
-            res = baseline_rollout_errors(model, data, float(h), traj_ids=list(test),
-                                          reset_every=reset_every, input_hold=input_hold)
-            scores.append(BaselineScore(name, model.kind, float(h), float(res.rollout_error_mean),
-                                        float(res.rollout_error_std),
-                                        tuple(int(i) for i in res.out_of_range)))
-    return BaselineComparison(tuple(int(i) for i in train), tuple(int(i) for i in test),
-                              tuple(scores))
+    trajectories of ``data`` with predict's rollout error (:func:`score_models`, as
+    :func:`compare_baselines` scores those it fits)."""
+    return score_models(models, data, train, test, horizons, reset_every=reset_every,
+                        input_hold=input_hold)
 
 
 def _comparison(info, data, test, horizons, reset_every, input_hold):
@@ -220,7 +212,7 @@ def _ids_text(ids) -> str:
 
 def _score_text(s: BaselineScore) -> str:
     out = f"; {len(s.out_of_range)} left the training range" if s.out_of_range else ""
-    return f"{s.name} {fmt(s.mean)}{out}"
+    return f"{s.label} {fmt(s.mean)}{out}"
 
 
 def _print_baselines(comparison: BaselineComparison, horizons, *, best: bool = False) -> None:

@@ -72,8 +72,9 @@ def baseline_rows(networks: Mapping[str, Errors], comparison: BaselineComparison
         scores = [next((s for s in comparison.at(h) if s.kind == kind), None) for h in hs]
         if all(s is None for s in scores):
             continue
-        rows.append((name, *("—" if s is None else _baseline_cell(s, len(comparison.test))
-                             for s in scores)))
+        label = next((s.label for s in scores if s is not None), name)
+        rows.append((label, *("—" if s is None else _baseline_cell(s, len(comparison.test))
+                              for s in scores)))
     return rows
 
 

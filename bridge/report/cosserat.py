@@ -86,6 +86,10 @@ def _training_lines(variant: str, v: Mapping[str, Any]) -> list[str]:
     if act:
         told = (act.get("note") or act["describe"]).removeprefix("actuator: ")
         lines.append(f"  - actuator (every network and baseline): {told}")
+    chose = sorted({f"{s['name']} {s['detail']}" for s in v.get("baselines", {}).get("scores", [])
+                    if s.get("detail")})
+    if chose:  # what a baseline's fit chose (the lagged ARX's order and fit)
+        lines.append("  - baselines: " + "; ".join(chose))
     for kind, label in NETWORKS:
         n = v["networks"][kind]
         t = n["train"]
