@@ -19,6 +19,7 @@ recordings (n = 2, m = 4), 4-10 s for task 5's (n = 6, m = 6). numpy and scipy; 
 
 from __future__ import annotations
 
+import abc
 import dataclasses
 import math
 
@@ -70,19 +71,23 @@ def _windows(segs, H: int, stride: int):
     return np.asarray(x0)[keep], np.asarray(u)[keep], np.asarray(q)[keep]
 
 
-class WindowResiduals:
+class WindowResiduals(abc.ABC):
     """The residuals of window rollouts q̂ against the measured q (W, H, n): a subclass sets
     ``q``, ``scale`` (1/√(W H): the residuals' sum of squares is the mean over samples) and
     ``cap`` (what a rollout that left every sensible range counts as: Levenberg-Marquardt
-    needs finite residuals, and a step into instability is then simply a bad step), and
-    defines ``predicted(thetas)`` (P, W, H, n) and ``jacobian(theta)``."""
+    needs finite residuals, and a step into instability is then simply a bad step)."""
 
     q: np.ndarray
     scale: float
     cap: float
 
+    @abc.abstractmethod
     def predicted(self, thetas: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+        """q̂ (P, W, H, n) of the windows under each parameter vector of ``thetas`` (P, k)."""
+
+    @abc.abstractmethod
+    def jacobian(self, theta: np.ndarray) -> np.ndarray:
+        """∂ residuals / ∂θ, (W H n, k)."""
 
     def _flat(self, pred: np.ndarray) -> np.ndarray:
         r = (pred - self.q).reshape(pred.shape[0], -1) * self.scale
