@@ -102,6 +102,38 @@ def test_predict_json_has_the_baselines_and_verdict(run, data, capsys):
     assert many["verdict"].count(" LOSES to ") + many["verdict"].count(" beats ") == 2
 
 
+def test_predict_keeps_the_fitted_baselines_in_the_run_and_reads_them_back(run, data, capsys,
+                                                                            monkeypatch):
+    import softpinn.bridge.analysis.baselines as bl
+
+    cache = run / "baselines.json"
+    cache.unlink(missing_ok=True)
+    args = ["predict", str(run), str(data), "--horizon", "2", "--json"]
+    first = _json(capsys, args)
+    doc = json.loads(cache.read_text())
+    assert [e["name"] for e in doc["models"]] == [name for name, _, _ in bl.BASELINES]
+    assert doc["train_trajectories"] == [0, 1, 2, 3] and len(doc["key"]) == 64
+
+    def no_fit(*a, **k):
+        raise AssertionError("refitted although the cache holds the same fits")
+
+    monkeypatch.setattr(bl, "fit_baseline", no_fit)
+    assert _json(capsys, args)["baselines"] == first["baselines"]  # the same numbers, read back
+    # another input hold is another fit: not read from the cache (and a broken cache refits)
+    assert bl._fit_key(bl_data := _loaded(data), [0, 1, 2, 3], "linear") != doc["key"]
+    monkeypatch.undo()
+    cache.write_text("{not json")
+    assert _json(capsys, args)["baselines"] == first["baselines"]
+    assert json.loads(cache.read_text())["key"] == doc["key"]
+    assert bl._fit_key(bl_data, [0, 1, 2], "constant") != doc["key"]
+
+
+def _loaded(path):
+    from softpinn.learn import load_dataset
+
+    return load_dataset(path)
+
+
 def test_train_linear_and_predict_end_to_end(linear, data, capsys):
     for name in ("config.json", "metrics.json", "arx.json", "arx_lags.json", "linear2.json",
                  "linear2_rollout.json", "no_motion.json"):

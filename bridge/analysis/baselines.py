@@ -8,18 +8,27 @@ fitted on the training trajectories (closed form; the rollout fits in seconds) a
 baselines). A network is worth training where it beats them; :func:`verdict` says in one line
 whether it does, at each horizon.
 
-Nothing here writes files: ``predict``, the task and experiment reports and the studies print
-:meth:`BaselineComparison.to_json` and :func:`verdict`.
+The task and experiment reports and the studies print :meth:`BaselineComparison.to_json` and
+:func:`verdict`. The one file written here is :func:`fit_baselines`' cache of the fitted models
+(``predict`` keeps it in the run's folder): the lagged ARX and the rollout fit take seconds to a
+quarter of a minute, and a user who predicts several times on the same run fits them once.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
+import numpy as np
+
+from softpinn._version import __version__
 from softpinn.errors import UserError
-from softpinn.learn import Dataset, baseline_rollout_errors, fit_baseline
+from softpinn.files import atomic_write, json_text
+from softpinn.learn import Dataset, baseline_from_dict, baseline_rollout_errors, fit_baseline
 
 #: the baselines fitted, with their fitting options, in the order they are shown
 BASELINES: tuple[tuple[str, str, dict], ...] = (
@@ -112,16 +121,59 @@ class BaselineComparison:
                    tuple(int(i) for i in d["test_trajectories"]), scores)
 
 
+def _fit_key(data: Dataset, train: Sequence[int], input_hold: str) -> str:
+    """What a fit depends on: the training rows as the models see them (after the run's
+    actuator), the fitting options and softpinn's version."""
+    h = hashlib.sha256()
+    for i in train:
+        rows = data.indices(int(i))
+        for a in (data.t, data.q, data.qd, data.u):
+            h.update(np.ascontiguousarray(a[rows], dtype=np.float64).tobytes())
+        h.update(f"|{int(i)}:{rows.size}|".encode())
+    h.update(json.dumps([BASELINES, input_hold, __version__], sort_keys=True).encode())
+    return h.hexdigest()
+
+
+def fit_baselines(data: Dataset, train: Sequence[int], *, input_hold: str = "constant",
+                  cache: str | Path | None = None) -> list[tuple[str, object]]:
+    """Every baseline of :data:`BASELINES` fitted on the ``train`` trajectories of ``data``:
+    (name, model) pairs. ``cache``: a JSON file that keeps the fits; they are read back from it
+    where it holds the fits of the same training rows, options and softpinn version, else fitted
+    and written there (a cache that cannot be read or written is passed over)."""
+    train = [int(i) for i in train]
+    key = _fit_key(data, train, input_hold) if cache is not None else None
+    if cache is not None:
+        try:
+            doc = json.loads(Path(cache).read_text())
+            if doc.get("key") == key:
+                return [(str(e["name"]), baseline_from_dict(e["model"])) for e in doc["models"]]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError, UserError):
+            pass
+    models = [(name, fit_baseline(kind, data, train, **fit_options(kind, options, input_hold)))
+              for name, kind, options in BASELINES]
+    if cache is not None:
+        # as read back (arrays laid out alike): the first call scores to the bit as the next
+        models = [(name, baseline_from_dict(m.to_dict())) for name, m in models]
+        doc = {"key": key, "train_trajectories": train, "input_hold": input_hold,
+               "softpinn": __version__,
+               "models": [{"name": name, "model": m.to_dict()} for name, m in models]}
+        try:
+            atomic_write(cache, json_text(doc))
+        except OSError:
+            pass
+    return models
+
+
 def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],
                       horizons: Sequence[float], *, reset_every: float | None = None,
-                      input_hold: str = "constant") -> BaselineComparison:
-    """Fit every baseline of :data:`BASELINES` on the ``train`` trajectories of ``data`` and
-    score it on the ``test`` trajectories at each horizon (seconds). Closed form: seconds."""
+                      input_hold: str = "constant",
+                      cache: str | Path | None = None) -> BaselineComparison:
+    """Fit every baseline of :data:`BASELINES` on the ``train`` trajectories of ``data``
+    (:func:`fit_baselines`, ``cache`` as there) and score it on the ``test`` trajectories at
+    each horizon (seconds). Closed form and rollout fits: seconds."""
     if not horizons:
         raise UserError("horizon: expected at least one horizon")
-    models = [(name, fit_baseline(kind, data, [int(i) for i in train],
-                                  **fit_options(kind, options, input_hold)))
-              for name, kind, options in BASELINES]
+    models = fit_baselines(data, train, input_hold=input_hold, cache=cache)
     return score_models(models, data, train, test, horizons, reset_every=reset_every,
                         input_hold=input_hold)
 

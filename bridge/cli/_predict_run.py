@@ -29,7 +29,7 @@ from softpinn.bridge.analysis.baselines import (
     BaselineComparison,
     BaselineScore,
     compare_baselines,
-    fit_options,
+    fit_baselines,
     score_models,
     verdict,
 )
@@ -38,7 +38,6 @@ from softpinn.bridge.cli.runnotes import member_notes, note_interrupted, ran_awa
 from softpinn.errors import UserError
 from softpinn.learn import (
     baseline_from_dict,
-    fit_baseline,
     load_dataset,
     predict,
     read_json,
@@ -48,6 +47,8 @@ from softpinn.learn import (
 
 #: ``config.json``'s model kind of a ``train --model linear`` run
 LINEAR = "linear"
+#: the file in a run's folder that keeps the baselines predict fitted (their fits take seconds)
+BASELINE_CACHE = "baselines.json"
 
 
 def fmt(x) -> str:
@@ -87,7 +88,8 @@ def run(args) -> int:
         data = load_dataset(args.data, n=info["model"]["n"], m=info["model"]["m"])
         data = with_actuator(data, run_actuator(info["train"].get("actuator", "auto"), data.m))
         comparison = _comparison(info, data, out["trajectories"], horizons, args.reset_every,
-                                 info["train"].get("input_hold", "constant"))
+                                 info["train"].get("input_hold", "constant"),
+                                 Path(out["run"]) / BASELINE_CACHE)
         if comparison is not None:
             line = verdict(f"{out['model']} network",
                            {r.horizon: r.rollout_error_mean for r in results}, comparison)
@@ -179,14 +181,14 @@ def score_baselines(models, data, train, test, horizons, reset_every=None,
                         input_hold=input_hold)
 
 
-def _comparison(info, data, test, horizons, reset_every, input_hold):
+def _comparison(info, data, test, horizons, reset_every, input_hold, cache):
     """The baselines fitted on the run's training trajectories (of its training file, also
-    where DATA is another file) and scored on ``test`` of ``data``; None, with a note, where
-    the training file is not at hand."""
+    where DATA is another file; kept in ``cache`` for the next call) and scored on ``test`` of
+    ``data``; None, with a note, where the training file is not at hand."""
     train = info["split"]["train"]
     if data.sha256 == info["dataset"]["sha256"]:
         return compare_baselines(data, train, test, horizons, reset_every=reset_every,
-                                 input_hold=input_hold)
+                                 input_hold=input_hold, cache=cache)
     source = info["dataset"].get("path")
     try:
         fit_data = load_dataset(source, n=data.n, m=data.m)
@@ -199,9 +201,7 @@ def _comparison(info, data, test, horizons, reset_every, input_hold):
               f"trajectories, and its training file {source} is not at hand as it was",
               file=sys.stderr)
         return None
-    models = [(name, fit_baseline(kind, fit_data, train,
-                                  **fit_options(kind, options, input_hold)))
-              for name, kind, options in BASELINES]
+    models = fit_baselines(fit_data, train, input_hold=input_hold, cache=cache)
     return score_baselines(models, data, train, test, horizons, reset_every, input_hold)
 
 

@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from softpinn.bridge.analysis import learned_matrices, true_matrices
-from softpinn.bridge.analysis.baselines import BASELINES, compare_baselines
+from softpinn.bridge.analysis.baselines import BASELINES, fit_baselines, score_models
 from softpinn.bridge.analysis.matrices import MatrixStack
 from softpinn.bridge.analysis.transforms import fit_transform
 from softpinn.learn import (
@@ -287,16 +287,17 @@ def stage_baselines(plan, imported: dict) -> dict:
     the training trajectories and scored on the test ones against the processed measurement,
     as :func:`stage_predict` scores the networks: over the horizon without reset (``short``)
     and over the whole test trajectories with the state reset every ``reset_every`` seconds
-    (``reset``), under the plan's actuator as the networks are. Closed form: well under a
-    second."""
+    (``reset``), under the plan's actuator as the networks are; fitted once for both (the
+    lagged ARX and the rollout fit take seconds)."""
     data = load_dataset(imported["path"])
     data = with_actuator(data, plan.actuator_dynamics(data.m))  # the networks' inputs
     train_ids, test = list(imported["train"]), [int(i) for i in imported["test"]]
     span = min(float(tr["t"][-1] - tr["t"][0]) for tr in trajectories(data, test))
     horizon = min(plan.horizon, span)
-    short = compare_baselines(data, train_ids, test, [horizon], input_hold=plan.input_hold)
-    reset = compare_baselines(data, train_ids, test, [span], reset_every=plan.reset_every,
-                              input_hold=plan.input_hold)
+    models = fit_baselines(data, train_ids, input_hold=plan.input_hold)  # fitted once
+    short = score_models(models, data, train_ids, test, [horizon], input_hold=plan.input_hold)
+    reset = score_models(models, data, train_ids, test, [span], reset_every=plan.reset_every,
+                         input_hold=plan.input_hold)
     return {"short": short.to_json(), "reset": reset.to_json(), "horizon_s": horizon,
             "span_s": span, "reset_every_s": plan.reset_every, "input_hold": plan.input_hold}
 
