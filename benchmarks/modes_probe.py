@@ -62,13 +62,14 @@ class Modes:
 
     HIST = 100  # input samples behind the past window that settle the lag's states
 
-    def __init__(self, train, *, modes: int, past: int, learn: bool, ridge: float = 1e-8):
+    def __init__(self, train, *, modes: int, past: int, learn: bool, ridge: float = 1e-8,
+                 kalman: tuple[float, float] | None = None):
         import jax
         import jax.numpy as jnp
 
         jax.config.update("jax_enable_x64", True)
         self.jax, self.jnp = jax, jnp
-        self.N, self.P, self.learn, self.ridge = modes, past, learn, ridge
+        self.N, self.P, self.learn, self.ridge, self.kalman = modes, past, learn, ridge, kalman
         self.dt = float(np.median(np.diff(train[0]["t"])))
         self.n, self.m = train[0]["q"].shape[1], train[0]["u"].shape[1]
         qs = np.concatenate([s["q"] for s in train])
@@ -164,6 +165,9 @@ class Modes:
             w0 = jax.lax.scan(lambda w, u: (lag @ w + lagB @ u, None), uh[0],
                               self._ua(uh[:self.HIST]))[0]
 
+        if self.kalman is not None:
+            return self._filtered(Ad, Bd, Cf, off, w0, uh, pq)
+
         def body(carry, u):
             Phi, f = carry
             return (Ad @ Phi, Ad @ f + Bd @ u), (Phi, f)
@@ -176,6 +180,30 @@ class Modes:
         # not show are pulled to rest
         s0 = jnp.linalg.solve(G + self.ridge * jnp.trace(G) / (2 * N) * jnp.eye(2 * N), O.T @ y)
         return Phis[-1] @ s0 + fs[-1]
+
+    def _filtered(self, Ad, Bd, Cf, off, w0, uh, pq):
+        """the state at the last past sample by a Kalman filter over the past samples: modes
+        from rest with a wide prior, process noise on the modal rates, measurement noise
+        (``kalman`` = (process, measurement) variances, normalised units)"""
+        jax, jnp, N, S = self.jax, self.jnp, self.N, self.S
+        qv, rv = self.kalman
+        P0 = jnp.zeros((S, S)).at[jnp.arange(2 * N), jnp.arange(2 * N)].set(10.0)
+        Q = jnp.zeros((S, S)).at[jnp.arange(1, 2 * N, 2), jnp.arange(1, 2 * N, 2)].set(qv)
+        R = rv * jnp.eye(self.n)
+
+        def update(s, Pm, y):
+            G = Cf @ Pm @ Cf.T + R
+            K = jnp.linalg.solve(G, Cf @ Pm).T
+            return s + K @ (y - off - Cf @ s), Pm - K @ Cf @ Pm
+
+        def body(carry, inp):
+            s, Pm = update(*carry, inp[0])
+            return (Ad @ s + Bd @ inp[1], Ad @ Pm @ Ad.T + Q), None
+
+        s0 = jnp.zeros(S).at[2 * N:].set(w0)
+        u = self._ua(uh[self.HIST:])
+        (s, Pm), _ = jax.lax.scan(body, (s0, P0), (pq[:-1], u[:-1]))
+        return update(s, Pm, pq[-1])[0]
 
     def one(self, th, uh, pq, fu):
         """q̂ (H, n) of one window"""
@@ -232,6 +260,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--ridge", type=float, default=1e-8,
                     help="of the start's least squares, relative to its mean diagonal")
+    ap.add_argument("--kalman", type=float, nargs=2, metavar=("PROCESS", "MEASUREMENT"),
+                    help="start by a Kalman filter with these variances instead")
     ap.add_argument("--save", type=Path, help="write the fit here (modes_network_probe.py)")
     args = ap.parse_args(argv)
 
@@ -241,7 +271,7 @@ def main(argv=None) -> int:
     act = {"study": "study", "true": TRUE_ACTUATOR, "learn": "none"}[args.actuator]
     train, val, test = _load(args.study, args.variant, act)
     model = Modes(train, modes=args.modes, past=args.past, learn=args.actuator == "learn",
-                  ridge=args.ridge)
+                  ridge=args.ridge, kalman=args.kalman)
     rng = np.random.default_rng(args.seed)
     delays = [float(d) for d in args.delays.split(",")] if model.learn else [0.0]
     t0 = time.process_time()
