@@ -14,7 +14,8 @@ a dead time from a grid and passed through a first-order lag whose time constant
 parameter of the fit (its states propagated from the input history). The modal state at a
 window's start is estimated by least squares from the window's past ``--past`` samples of q
 (a moving-horizon estimate with the model itself; at a trajectory's start from the past
-extrapolated along q̇0, inputs held, as the lagged ARX starts). Fitted by Levenberg-Marquardt on
+extrapolated along q̇0, inputs held, as the lagged ARX starts; ``--kalman`` estimates it by a
+Kalman filter over those samples instead). Fitted by Levenberg-Marquardt on
 the rollout error of 5 s windows of the training trajectories (JAX's forward-mode Jacobian),
 from ``--restarts`` starts with paired frequencies (a rod bends in two planes); the best on the
 training windows scored on the test trajectories from their starts, with ``softpinn predict``'s
