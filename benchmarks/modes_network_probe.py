@@ -65,7 +65,7 @@ def main(argv=None) -> int:
         raise SystemExit("modes_network_probe: needs a fit with --actuator learn")
     train, val, test = _load(args.study, args.variant, act)
     lin = Modes(train, modes=s["modes"], past=s["past"], learn=s["actuator"] == "learn",
-                ridge=s.get("ridge", 1e-8))
+                ridge=s.get("ridge", 1e-8), kalman=tuple(s["kalman"]) if s.get("kalman") else None)
     th, delay = jnp.asarray(saved["theta"]), saved["delay"]
     N, m, dt = lin.N, lin.m, lin.dt
     p = lin.unpack(th)
