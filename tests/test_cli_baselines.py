@@ -11,6 +11,7 @@ import pytest
 from datagen import make_dataset
 
 from softpinn.bridge.cli import main
+from softpinn.learn import load_dataset
 
 # the same settings as tests/test_cli_learn.py, so the program compiles once
 TRAIN = [
@@ -119,19 +120,15 @@ def test_predict_keeps_the_fitted_baselines_in_the_run_and_reads_them_back(run, 
 
     monkeypatch.setattr(bl, "fit_baseline", no_fit)
     assert _json(capsys, args)["baselines"] == first["baselines"]  # the same numbers, read back
-    # another input hold is another fit: not read from the cache (and a broken cache refits)
-    assert bl._fit_key(bl_data := _loaded(data), [0, 1, 2, 3], "linear") != doc["key"]
     monkeypatch.undo()
-    cache.write_text("{not json")
+    cache.write_text("{not json")  # a broken cache refits, and is written whole again
     assert _json(capsys, args)["baselines"] == first["baselines"]
     assert json.loads(cache.read_text())["key"] == doc["key"]
-    assert bl._fit_key(bl_data, [0, 1, 2], "constant") != doc["key"]
-
-
-def _loaded(path):
-    from softpinn.learn import load_dataset
-
-    return load_dataset(path)
+    # another input hold or other training rows are other fits: not read from the cache
+    loaded = load_dataset(data)
+    assert bl._fit_key(loaded, [0, 1, 2, 3], "constant") == doc["key"]
+    assert bl._fit_key(loaded, [0, 1, 2, 3], "linear") != doc["key"]
+    assert bl._fit_key(loaded, [0, 1, 2], "constant") != doc["key"]
 
 
 def test_train_linear_and_predict_end_to_end(linear, data, capsys):

@@ -141,27 +141,28 @@ def fit_baselines(data: Dataset, train: Sequence[int], *, input_hold: str = "con
     where it holds the fits of the same training rows, options and softpinn version, else fitted
     and written there (a cache that cannot be read or written is passed over)."""
     train = [int(i) for i in train]
-    key = _fit_key(data, train, input_hold) if cache is not None else None
-    if cache is not None:
-        try:
-            doc = json.loads(Path(cache).read_text())
-            if doc.get("key") == key:
-                return [(str(e["name"]), baseline_from_dict(e["model"])) for e in doc["models"]]
-        except (OSError, ValueError, KeyError, TypeError, AttributeError, UserError):
-            pass
-    models = [(name, fit_baseline(kind, data, train, **fit_options(kind, options, input_hold)))
-              for name, kind, options in BASELINES]
-    if cache is not None:
-        # as read back (arrays laid out alike): the first call scores to the bit as the next
-        models = [(name, baseline_from_dict(m.to_dict())) for name, m in models]
-        doc = {"key": key, "train_trajectories": train, "input_hold": input_hold,
-               "softpinn": __version__,
-               "models": [{"name": name, "model": m.to_dict()} for name, m in models]}
-        try:
-            atomic_write(cache, json_text(doc))
-        except OSError:
-            pass
-    return models
+    models = lambda: [(name, fit_baseline(kind, data, train,  # noqa: E731
+                                          **fit_options(kind, options, input_hold)))
+                      for name, kind, options in BASELINES]
+    if cache is None:
+        return models()
+    key = _fit_key(data, train, input_hold)
+    try:
+        doc = json.loads(Path(cache).read_text())
+        if doc.get("key") == key:
+            return [(str(e["name"]), baseline_from_dict(e["model"])) for e in doc["models"]]
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, UserError):
+        pass
+    # as read back (arrays laid out alike): the first call scores to the bit as the next
+    fitted = [(name, baseline_from_dict(m.to_dict())) for name, m in models()]
+    doc = {"key": key, "train_trajectories": train, "input_hold": input_hold,
+           "softpinn": __version__,
+           "models": [{"name": name, "model": m.to_dict()} for name, m in fitted]}
+    try:
+        atomic_write(cache, json_text(doc))
+    except OSError:
+        pass
+    return fitted
 
 
 def compare_baselines(data: Dataset, train: Sequence[int], test: Sequence[int],

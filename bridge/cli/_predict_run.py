@@ -172,15 +172,6 @@ def first_seconds(res, horizon: float):
 # ------------------------------------------------------------------------------- baselines
 
 
-def score_baselines(models, data, train, test, horizons, reset_every=None,
-                    input_hold: str = "constant") -> BaselineComparison:
-    """Fitted baselines ``models`` ((name, model) pairs) scored at each horizon on the ``test``
-    trajectories of ``data`` with predict's rollout error (:func:`score_models`, as
-    :func:`compare_baselines` scores those it fits)."""
-    return score_models(models, data, train, test, horizons, reset_every=reset_every,
-                        input_hold=input_hold)
-
-
 def _comparison(info, data, test, horizons, reset_every, input_hold, cache):
     """The baselines fitted on the run's training trajectories (of its training file, also
     where DATA is another file; kept in ``cache`` for the next call) and scored on ``test`` of
@@ -202,7 +193,8 @@ def _comparison(info, data, test, horizons, reset_every, input_hold, cache):
               file=sys.stderr)
         return None
     models = fit_baselines(fit_data, train, input_hold=input_hold, cache=cache)
-    return score_baselines(models, data, train, test, horizons, reset_every, input_hold)
+    return score_models(models, data, train, test, horizons, reset_every=reset_every,
+                        input_hold=input_hold)
 
 
 def _ids_text(ids) -> str:
@@ -273,8 +265,8 @@ def _predict_linear(args, info, traj, horizons) -> int:
         unknown = sorted(set(ids) - set(data.trajectory_ids.tolist()))
         if unknown:
             raise UserError(f"trajectories {unknown} are not in {data.path}")
-    comparison = score_baselines(models, data, info["split"]["train"], ids, horizons,
-                                 args.reset_every)
+    comparison = score_models(models, data, info["split"]["train"], ids, horizons,
+                              reset_every=args.reset_every)
     best = {h: min(comparison.at(h), key=lambda s: s.mean).name for h in horizons}
     if args.json:
         doc = {"run": str(run_dir), "model": LINEAR, "dataset": data.path,

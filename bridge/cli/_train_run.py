@@ -217,11 +217,11 @@ def train_linear(args) -> int:
     arx, lin, oe = fits["arx"], fits["linear2"], fits["linear2_rollout"]
     lags = models["arx_lags"]
     trajs = f"{len(train_ids)} trajector{'y' if len(train_ids) == 1 else 'ies'}"
+    how = "by least squares" if lags.info["fit"] == "least squares" else "by its rollouts"
     print(f"fitted ARX (order 2), a lagged ARX (lags of q and u) and a linear second-order "
           f"model on {trajs} in {seconds:.2g} s: ARX one-step rms {arx['one_step_rms']:.4e} "
           f"(spectral radius {arx['spectral_radius']:.4g}), lagged ARX of order {lags.order} "
-          f"fitted "
-          f"{'by least squares' if lags.info['fit'] == 'least squares' else 'by its rollouts'} "
+          f"fitted {how} "
           f"(chosen by {lags.info['horizon']:g} s rollouts on {lags.info['order_chosen_on']}), "
           f"linear2 q̈ rms {lin['accel_rms']:.4e} (largest real eigenvalue "
           f"{lin['max_real_eigenvalue']:.3g}); fitted by its {oe['horizon']:.3g} s rollout "
