@@ -23,7 +23,9 @@ import time
 from pathlib import Path
 
 
-def _study(root: Path, variant: str):
+def _study(root: Path, variant: str, actuator_text: str | None = None):
+    """(train, validation, test) segments of the bending coordinates, the inputs through the
+    study's identified actuator (or ``actuator_text``, ``TAU:DELAY`` or ``none``)."""
     from softpinn.bridge.cosserat.stages import load_dataset, run_actuator, with_actuator
 
     def sub(d):
@@ -32,7 +34,7 @@ def _study(root: Path, variant: str):
     imported = sub(json.loads((root / variant / "import" / "done.json").read_text())["result"])
     actuator = json.loads((root / variant / "actuator" / "done.json").read_text())["result"]
     data = load_dataset(imported["path"])
-    felt = with_actuator(data, run_actuator(actuator["text"], data.m))
+    felt = with_actuator(data, run_actuator(actuator_text or actuator["text"], data.m))
 
     def segs(ids):
         out = []

@@ -44,16 +44,7 @@ def _load(root: Path, variant: str, actuator: str):
     """(train, validation, test) segments under ``actuator`` ("study": the identified one)."""
     from memory_probe import _study
 
-    import softpinn.bridge.cosserat.stages as stages
-
-    if actuator != "study":
-        original = stages.run_actuator
-        stages.run_actuator = lambda text, m: original(actuator, m)
-        try:
-            return _study(root, variant)
-        finally:
-            stages.run_actuator = original
-    return _study(root, variant)
+    return _study(root, variant, None if actuator == "study" else actuator)
 
 
 class Modes:
